@@ -1,0 +1,76 @@
+"""``lift3d <verb>``: one entry point, a module per verb (``lift3d/cli/<verb>.py`` with ``add_parser``).
+
+Bad input (:class:`~lift3d.errors.Lift3DError`) is printed as one line with exit code 2; ``--debug`` shows the
+traceback instead.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import os
+import sys
+
+from lift3d import __version__
+from lift3d.errors import Lift3DError
+
+# Verb → module under lift3d.cli, in the order of DESIGN.md section 2. A verb is listed only once it works.
+VERBS = {
+    "demo": "demo",
+    "synth": "synth",
+    "convert": "convert",
+    "train": "train",
+    "render": "render",
+    "eval": "evaluate",
+    "export": "export",
+    "plot": "plot",
+    "label": "label",
+    "bench": "bench",
+}
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="lift3d",
+        description="3D panoptic labelling: lift noisy 2D panoptic predictions into a 3D-consistent panoptic "
+        "radiance field, then render, evaluate and export labelled point clouds and meshes.",
+    )
+    parser.add_argument("--version", action="version", version=f"lift3d {__version__}")
+    parser.add_argument("--debug", action="store_true", help="show full tracebacks instead of one-line errors")
+    sub = parser.add_subparsers(dest="verb", metavar="<verb>")
+    for verb, module in VERBS.items():
+        try:
+            mod = importlib.import_module(f"lift3d.cli.{module}")
+        except ModuleNotFoundError as exc:
+            if exc.name == f"lift3d.cli.{module}":
+                continue  # not built yet: absent rather than pretending to work
+            raise
+        p = mod.add_parser(sub, verb)
+        p.add_argument("--debug", action="store_true", default=argparse.SUPPRESS,
+                       help="show full tracebacks instead of one-line errors")
+    return parser
+
+
+def main(argv: list[str] | None = None) -> int:
+    argv = list(sys.argv[1:] if argv is None else argv)
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    if not getattr(args, "verb", None):
+        parser.print_help()
+        return 2
+    debug = bool(getattr(args, "debug", False)) or os.environ.get("LIFT3D_DEBUG", "") not in ("", "0")
+    try:
+        rc = args.func(args)
+        return int(rc or 0)
+    except Lift3DError as exc:
+        if debug:
+            raise
+        print(f"lift3d {args.verb}: error: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print(f"lift3d {args.verb}: interrupted", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,157 @@
+"""Image and label-map file I/O (OpenCV), with one-line errors that name the file.
+
+* Colour images are returned as ``uint8 [H, W, 3]`` **RGB** (OpenCV reads BGR; the flip happens here only).
+* Label maps (semantic, instance) are 8- or 16-bit single-channel PNGs holding exact integer ids.
+* COCO panoptic PNGs encode a segment id as ``R + 256 G + 256² B`` (:func:`rgb_to_id` / :func:`id_to_rgb`).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from lift3d.errors import InputError
+from lift3d.utils.atomic import write_bytes_atomic
+
+
+def rgb_to_id(rgb: np.ndarray) -> np.ndarray:
+    """COCO panoptic colour → segment id: ``R + 256 G + 256² B``.
+
+    Parameters
+    ----------
+    rgb : np.ndarray
+        ``[..., 3]`` uint8 RGB.
+
+    Returns
+    -------
+    np.ndarray
+        ``[...]`` int64 segment ids (0 = void).
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> int(rgb_to_id(np.array([1, 2, 3], np.uint8)))
+    197121
+    """
+    rgb = np.asarray(rgb).astype(np.int64)
+    return rgb[..., 0] + 256 * rgb[..., 1] + 256 * 256 * rgb[..., 2]
+
+
+def id_to_rgb(ids: np.ndarray) -> np.ndarray:
+    """Segment id → COCO panoptic colour (inverse of :func:`rgb_to_id`), ``uint8 [..., 3]``."""
+    ids = np.asarray(ids, dtype=np.int64)
+    if ids.size and (ids.min() < 0 or ids.max() >= 256**3):
+        raise ValueError("panoptic segment ids must lie in [0, 256^3)")
+    return np.stack([ids % 256, (ids // 256) % 256, ids // 65536], -1).astype(np.uint8)
+
+
+def _imread(path: Path, flags: int) -> np.ndarray:
+    if not path.is_file():
+        raise InputError(path, "file not found")
+    data = np.fromfile(str(path), dtype=np.uint8)
+    img = cv2.imdecode(data, flags) if data.size else None
+    if img is None:
+        raise InputError(path, "not a readable image (corrupt or truncated?)")
+    return img
+
+
+def read_rgb(path: str | Path) -> np.ndarray:
+    """Read a colour image as ``uint8 [H, W, 3]`` RGB (16-bit images are scaled to 8 bit, alpha dropped)."""
+    path = Path(path)
+    img = _imread(path, cv2.IMREAD_UNCHANGED)
+    if img.dtype == np.uint16:
+        img = (img // 257).astype(np.uint8)
+    elif img.dtype != np.uint8:
+        raise InputError(path, f"unsupported image dtype {img.dtype}")
+    if img.ndim == 2:
+        img = np.repeat(img[..., None], 3, axis=-1)
+    elif img.shape[2] == 4:
+        img = cv2.cvtColor(img, cv2.COLOR_BGRA2RGB)
+    else:
+        img = cv2.cvtColor(img, cv2.COLOR_BGR2RGB)
+    return np.ascontiguousarray(img)
+
+
+def read_label_map(path: str | Path) -> np.ndarray:
+    """Read a single-channel 8/16-bit PNG of integer ids as ``int32 [H, W]``."""
+    path = Path(path)
+    img = _imread(path, cv2.IMREAD_UNCHANGED)
+    if img.ndim == 3:
+        # A label PNG saved as RGB with equal channels is still unambiguous.
+        if not (np.array_equal(img[..., 0], img[..., 1]) and np.array_equal(img[..., 1], img[..., 2])):
+            raise InputError(path, "label map must be single-channel (got colour)")
+        img = img[..., 0]
+    if img.dtype not in (np.uint8, np.uint16):
+        raise InputError(path, f"label map must be 8- or 16-bit integers (got {img.dtype})")
+    return img.astype(np.int32)
+
+
+def read_panoptic_png(path: str | Path) -> np.ndarray:
+    """Read a COCO panoptic PNG as ``int64 [H, W]`` segment ids (0 = void)."""
+    path = Path(path)
+    img = _imread(path, cv2.IMREAD_UNCHANGED)
+    if img.ndim != 3 or img.shape[2] < 3 or img.dtype != np.uint8:
+        raise InputError(path, "a COCO panoptic PNG must be 8-bit RGB")
+    return rgb_to_id(cv2.cvtColor(img[..., :3], cv2.COLOR_BGR2RGB))
+
+
+def read_depth(path: str | Path, unit_scale: float) -> np.ndarray:
+    """Read a depth image (uint16 in ``unit_scale`` metres per unit, 0 = unknown) as float32 metres
+    (unknown → 0). ``.npy`` float arrays in metres are accepted too."""
+    path = Path(path)
+    if path.suffix == ".npy":
+        try:
+            d = np.load(path).astype(np.float32)
+        except (OSError, ValueError) as exc:
+            raise InputError(path, f"not a readable .npy depth ({exc})") from exc
+        return np.nan_to_num(d, nan=0.0, posinf=0.0, neginf=0.0)
+    img = _imread(path, cv2.IMREAD_UNCHANGED)
+    if img.ndim != 2:
+        raise InputError(path, "depth must be a single-channel image")
+    return img.astype(np.float32) * np.float32(unit_scale)
+
+
+def _encode_png(path: Path, img: np.ndarray) -> bytes:
+    ok, buf = cv2.imencode(".png", img)
+    if not ok:
+        raise InputError(path, "PNG encoding failed")
+    return buf.tobytes()
+
+
+def write_rgb(path: str | Path, rgb: np.ndarray, quality: int = 95) -> None:
+    """Write ``uint8 [H, W, 3]`` RGB as PNG or JPEG (by suffix), atomically."""
+    path = Path(path)
+    bgr = cv2.cvtColor(np.ascontiguousarray(rgb, dtype=np.uint8), cv2.COLOR_RGB2BGR)
+    if path.suffix.lower() in (".jpg", ".jpeg"):
+        ok, buf = cv2.imencode(".jpg", bgr, [cv2.IMWRITE_JPEG_QUALITY, quality])
+        if not ok:
+            raise InputError(path, "JPEG encoding failed")
+        write_bytes_atomic(path, buf.tobytes())
+    else:
+        write_bytes_atomic(path, _encode_png(path, bgr))
+
+
+def write_label_map(path: str | Path, labels: np.ndarray) -> None:
+    """Write integer ids ``[H, W]`` as a 16-bit PNG (exact ids 0..65535), atomically."""
+    path = Path(path)
+    labels = np.asarray(labels)
+    if labels.size and (labels.min() < 0 or labels.max() > 65535):
+        raise ValueError(f"{path}: label ids must lie in [0, 65535] for a 16-bit PNG")
+    write_bytes_atomic(path, _encode_png(path, labels.astype(np.uint16)))
+
+
+def write_panoptic_png(path: str | Path, segment_ids: np.ndarray) -> None:
+    """Write segment ids ``[H, W]`` as a COCO panoptic RGB PNG, atomically."""
+    path = Path(path)
+    rgb = id_to_rgb(segment_ids)
+    write_bytes_atomic(path, _encode_png(path, cv2.cvtColor(rgb, cv2.COLOR_RGB2BGR)))
+
+
+def write_depth(path: str | Path, depth_m: np.ndarray, unit_scale: float) -> None:
+    """Write metric depth as uint16 PNG in units of ``unit_scale`` metres (0 = unknown / out of range)."""
+    path = Path(path)
+    d = np.asarray(depth_m, np.float64) / unit_scale
+    d = np.where(np.isfinite(d) & (d > 0) & (d < 65535.5), np.round(d), 0).astype(np.uint16)
+    write_bytes_atomic(path, _encode_png(path, d))

@@ -1,0 +1,43 @@
+"""Device and thread selection. Code is device-agnostic: ``--device auto|cpu|cuda[:N]``."""
+
+from __future__ import annotations
+
+import os
+
+import torch
+
+from lift3d.errors import InputError
+
+
+def resolve_device(name: str = "auto") -> torch.device:
+    """``auto`` → CUDA when available, else CPU. An unavailable ``cuda`` is a one-line error.
+
+    Examples
+    --------
+    >>> resolve_device("cpu")
+    device(type='cpu')
+    """
+    if name == "auto":
+        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
+    try:
+        dev = torch.device(name)
+    except RuntimeError:
+        raise InputError("--device", f"unknown device {name!r} (use auto, cpu or cuda)") from None
+    if dev.type == "cuda" and not torch.cuda.is_available():
+        raise InputError("--device", "CUDA was requested but torch sees no GPU (use --device cpu or auto)")
+    return dev
+
+
+def available_cpus() -> int:
+    """CPUs this process may run on (cgroup/affinity aware)."""
+    try:
+        return len(os.sched_getaffinity(0))
+    except AttributeError:  # macOS / Windows
+        return os.cpu_count() or 1
+
+
+def set_threads(n: int | None = None) -> int:
+    """Use ``n`` intra-op threads (default: every CPU this process may use). Returns the count."""
+    n = n or int(os.environ.get("LIFT3D_THREADS", 0)) or available_cpus()
+    torch.set_num_threads(n)
+    return n
