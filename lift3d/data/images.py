@@ -88,6 +88,23 @@ def read_label_map(path: str | Path) -> np.ndarray:
     return img.astype(np.int32)
 
 
+def read_unit_map(path: str | Path) -> np.ndarray:
+    """Read an 8- or 16-bit single-channel PNG of values in [0, 1] (e.g. a confidence map) as
+    ``float32 [H, W]``: 8-bit images are divided by 255, 16-bit ones by 65535.
+
+    The scale comes from the file's bit depth, not from its values: a 16-bit map whose values all happen
+    to be ≤ 255 (a low-confidence frame) is still a 16-bit map."""
+    path = Path(path)
+    img = _imread(path, cv2.IMREAD_UNCHANGED)
+    if img.ndim != 2:
+        raise InputError(path, "must be a single-channel 8- or 16-bit image")
+    if img.dtype == np.uint8:
+        return img.astype(np.float32) / np.float32(255.0)
+    if img.dtype == np.uint16:
+        return img.astype(np.float32) / np.float32(65535.0)
+    raise InputError(path, f"must be an 8- or 16-bit image (got {img.dtype})")
+
+
 def read_panoptic_png(path: str | Path) -> np.ndarray:
     """Read a COCO panoptic PNG as ``int64 [H, W]`` segment ids (0 = void)."""
     path = Path(path)

@@ -3,8 +3,10 @@
 Open3D drops custom vertex attributes of meshes on write, and its legacy point-cloud writer knows only
 xyz/rgb/normals, so lift3d writes its labelled geometry itself: float32 ``x y z``, uchar ``red green blue``,
 int32 ``semantic`` and ``instance``, float32 ``confidence`` (DESIGN.md section 3), binary little-endian.
-These files open in Open3D's tensor API (``o3d.t.io.read_point_cloud`` keeps the int32 attributes),
-plyfile, PyVista and CloudCompare.
+These files open in Open3D's tensor API (``o3d.t.io.read_point_cloud`` keeps the int32 attributes as
+``[N, 1]`` tensors named ``semantic``/``instance``/``confidence``, beside ``positions``/``colors``/``normals``),
+plyfile, PyVista and CloudCompare. PyVista (VTK's PLY reader) keeps only geometry, faces and colours
+(``RGB``) and drops the label properties: read them with :func:`read_labelled_ply` and attach them.
 """
 
 from __future__ import annotations
@@ -133,6 +135,11 @@ def read_labelled_ply(path: str | Path) -> dict[str, np.ndarray]:
         key = "vertex_indices" if "vertex_indices" in f.dtype.names else f.dtype.names[0]
         faces = f[key]
         if faces.dtype == object:
+            # Variable-length lists (the fast path failed): only triangles are supported; a quad mesh from
+            # another tool must fail as bad input, not as a numpy reshape error.
+            if any(len(x) != 3 for x in faces):
+                raise InputError(path, f"face.{key}: only triangle meshes are supported (found polygons with "
+                                       f"{sorted({len(x) for x in faces} - {3})} vertices)")
             faces = np.stack([np.asarray(x, np.int32) for x in faces]) if len(f) else np.zeros((0, 3))
         out["faces"] = np.asarray(faces, np.int32).reshape(-1, 3)
     out["comments"] = list(ply.comments)

@@ -39,6 +39,7 @@ from lift3d.data.images import (
     read_label_map,
     read_panoptic_png,
     read_rgb,
+    read_unit_map,
     write_depth,
     write_label_map,
     write_panoptic_png,
@@ -78,7 +79,8 @@ class Segment:
         d: dict[str, Any] = {"id": int(self.id), "category_id": int(self.category_id), "iscrowd": int(self.iscrowd)}
         if area is not None:
             d["area"] = int(area)
-        d["score"] = round(float(self.score), 6)
+        # Not rounded: JSON keeps a Python float exactly, so scores survive a write/read round trip.
+        d["score"] = float(self.score)
         return d
 
 
@@ -318,8 +320,7 @@ def _read_confidence(path: Path) -> np.ndarray:
         except (OSError, ValueError) as exc:
             raise InputError(path, f"not a readable .npy confidence map ({exc})") from exc
     else:
-        raw = read_label_map(path)
-        c = raw.astype(np.float32) / (65535.0 if raw.max(initial=0) > 255 else 255.0)
+        c = read_unit_map(path)
     if not np.all(np.isfinite(c)) or c.min(initial=0) < 0 or c.max(initial=0) > 1:
         raise InputError(path, "confidence must lie in [0, 1]")
     return c
@@ -535,6 +536,8 @@ def load_scene(root: str | Path) -> Scene:
             gt = f"gt/panoptic/{name}.png"
         if gt is not None:
             frame.gt_panoptic_path = _resolve(root, gt, tpath, f"frames[{k}].gt_panoptic_file_path")
+            if not gt_json_path.is_file():
+                raise InputError(gt_json_path, "file not found (needed for the GT panoptic PNGs' segments_info)")
             key = os.path.basename(gt)
             if key not in gt_segs_by_file:
                 raise InputError(gt_json_path, f"no annotation with file_name {key!r} (frames[{k}])")
@@ -571,15 +574,33 @@ def load_scene(root: str | Path) -> Scene:
             raise InputError(tpath, f"scene_box.type: {kind!r} is not 'bounded' or 'unbounded'")
         scene_box = SceneBox(kind, aabb)
 
+    depth_scale = _number(meta, "depth_unit_scale_factor", tpath, "depth_unit_scale_factor", 1e-3)
+    if depth_scale <= 0:  # would silently turn every depth into 0 or negative distances
+        raise InputError(tpath, f"depth_unit_scale_factor: must be positive (got {depth_scale})")
     gt_points = root / "gt" / "points.ply"
     return Scene(
         root=root, frames=frames, cameras=cameras, categories=categories, splits=splits, scene_box=scene_box,
-        depth_unit_scale_factor=_number(meta, "depth_unit_scale_factor", tpath, "depth_unit_scale_factor", 1e-3),
-        gt_points_path=gt_points if gt_points.is_file() else None,
+        depth_unit_scale_factor=depth_scale, gt_points_path=gt_points if gt_points.is_file() else None,
     )
 
 
 def _splits(meta: dict, frames: list[Frame], where: Path) -> dict[str, np.ndarray]:
+    """Frame indices of the ``train``/``val``/``test`` splits.
+
+    Explicit lists come from ``train_filenames``, ``val_filenames`` and ``test_filenames`` (entries are
+    frame ``file_path``s; an entry that matches no path is matched by file-name stem). An explicit list
+    must be non-empty and name existing frames.
+
+    Default rule for what ``transforms.json`` leaves out (the nerfstudio/LLFF habit):
+
+    * no ``train`` and no ``test``: every 8th frame (indices 0, 8, 16, ...) is ``test``, the rest ``train``;
+    * ``test`` given, no ``train``: ``train`` is every frame not in ``test`` (every frame when ``test``
+      holds them all);
+    * ``train`` given, no ``test``: ``test`` is every frame not in ``train``; when ``train`` already holds
+      every frame, ``test`` is every ``len(train) // 8``-th train frame (so it overlaps ``train``);
+    * no ``val``: ``val`` is ``test``;
+    * a single-frame scene: that frame is ``train``, ``val`` and ``test``.
+    """
     index = {f.file_path: i for i, f in enumerate(frames)}
     by_name = {f.name: i for i, f in enumerate(frames)}
     splits: dict[str, np.ndarray] = {}
@@ -592,9 +613,11 @@ def _splits(meta: dict, frames: list[Frame], where: Path) -> dict[str, np.ndarra
             raise InputError(where, f"{key}: empty split")
         idx = []
         for n in names:
+            if not isinstance(n, str):
+                raise InputError(where, f"{key}: entries must be file_path strings (got {n!r})")
             if n in index:
                 idx.append(index[n])
-            elif isinstance(n, str) and Path(n).stem in by_name:
+            elif Path(n).stem in by_name:
                 idx.append(by_name[Path(n).stem])
             else:
                 raise InputError(where, f"{key}: {n!r} is not one of the frames")

@@ -10,6 +10,7 @@ import contextlib
 import io
 import json
 import os
+import stat
 import tempfile
 from pathlib import Path
 from typing import IO, Any, Iterator
@@ -21,7 +22,8 @@ from lift3d.errors import InputError
 def atomic_open(path: str | Path, mode: str = "wb") -> Iterator[IO[Any]]:
     """Open a temporary file beside ``path``; on success fsync it and rename it onto ``path``.
 
-    On any exception the temporary file is removed and ``path`` is untouched.
+    On any exception the temporary file is removed and ``path`` is untouched. The new file keeps the
+    permissions of the file it replaces (a new file gets ``0o666`` minus the umask, as with ``open``).
 
     Examples
     --------
@@ -42,6 +44,7 @@ def atomic_open(path: str | Path, mode: str = "wb") -> Iterator[IO[Any]]:
             yield f
             f.flush()
             os.fsync(f.fileno())
+        os.chmod(tmp, _final_mode(path))
         os.replace(tmp, path)
     except BaseException as exc:
         with contextlib.suppress(OSError):
@@ -50,6 +53,26 @@ def atomic_open(path: str | Path, mode: str = "wb") -> Iterator[IO[Any]]:
             raise InputError(path, f"could not be written ({exc.strerror or exc})") from exc
         raise
     _fsync_dir(directory)
+
+
+def _final_mode(path: Path) -> int:
+    """Permissions for the renamed file: those of the file being replaced, else what ``open()`` would give
+    a new file (0o666 minus the umask). ``mkstemp`` creates 0o600 files, which would otherwise leave every
+    export and scene file unreadable to other users (a robot's mapping process, a shared data folder)."""
+    try:
+        return stat.S_IMODE(os.stat(path).st_mode)
+    except OSError:
+        return 0o666 & ~_UMASK
+
+
+def _current_umask() -> int:
+    # The umask can only be read by setting it; do it once at import, before worker threads exist.
+    mask = os.umask(0o022)
+    os.umask(mask)
+    return mask
+
+
+_UMASK = _current_umask()
 
 
 def _fsync_dir(directory: Path) -> None:
