@@ -1,0 +1,145 @@
+"""``lift3d convert --from colmap|panoptic-lifting|scannet SRC --out DIR``: other inputs into a scene folder.
+
+See ``docs/convert.md`` for the folder layouts each source expects and the conventions they follow.
+"""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from lift3d.errors import InputError
+
+EPILOG = """examples:
+  lift3d convert --from colmap my_capture --predictions my_capture/m2f --out scenes/my_capture
+  lift3d convert --from scannet scans/scene0423_02 --predictions preds/scene0423_02 \\
+      --categories classes.json --out scenes/scene0423_02 --downscale 2
+  lift3d convert --from panoptic-lifting data/replica/room_0 --out scenes/room_0
+"""
+
+
+def add_parser(subparsers: argparse._SubParsersAction, verb: str) -> argparse.ArgumentParser:
+    """Create the ``convert`` sub-command."""
+    p = subparsers.add_parser(
+        verb,
+        help="convert COLMAP, Panoptic Lifting or ScanNet-style inputs into a scene folder",
+        description="Convert posed images plus 2D panoptic predictions from another layout into lift3d's "
+                    "scene folder (transforms.json with OpenGL camera-to-world poses, COCO panoptic "
+                    "pseudo-labels, optional ground truth and depth). The result is read back to check it.",
+        epilog=EPILOG,
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    p.add_argument("--from", dest="source", required=True, choices=["colmap", "panoptic-lifting", "scannet"],
+                   help="the layout of SRC")
+    p.add_argument("src", metavar="SRC", type=Path,
+                   help="colmap: a sparse model folder or a workspace holding sparse/0, sparse or "
+                        "colmap/sparse/0; panoptic-lifting / scannet: the scene folder")
+    p.add_argument("--out", required=True, type=Path, metavar="DIR", help="output scene folder")
+    p.add_argument("--images", type=Path, metavar="DIR",
+                   help="colmap: folder the image names in images.txt|bin are relative to (default: "
+                        "SRC/images, else an images/ folder beside the model folder or up to three levels "
+                        "above it)")
+    p.add_argument("--predictions", type=Path, metavar="DIR",
+                   help="colmap, scannet (required): 2D panoptic predictions per image, matched by file "
+                        "stem: COCO panoptic (panoptic.json + PNGs) or semantic/ + instance/ PNG folders")
+    p.add_argument("--categories", type=Path, metavar="FILE",
+                   help="JSON list of COCO panoptic categories {id, name, isthing, color} (or a COCO panoptic "
+                        "JSON holding one); needed when the predictions carry none, unless --things is given")
+    p.add_argument("--things", metavar="IDS",
+                   help="comma-separated thing class ids for generic class_<id> categories, used when there "
+                        "is no --categories and the predictions carry none ('none' = only stuff); "
+                        "panoptic-lifting default: fg_classes of segmentation_data.pkl")
+    p.add_argument("--test-every", type=int, default=8, metavar="N",
+                   help="hold out every N-th frame (sorted by name) as the test split; 0 = train on all "
+                        "(panoptic-lifting uses splits.json when present) (default: %(default)s)")
+    p.add_argument("--labels-prefix", default="m2f", metavar="PREFIX",
+                   help="panoptic-lifting: read pseudo-labels from PREFIX_semantics/ and PREFIX_instance/, "
+                        "e.g. m2f_notta (default: %(default)s)")
+    p.add_argument("--no-confidence", action="store_true",
+                   help="panoptic-lifting: ignore the per-pixel confidence in m2f_probabilities/*.npz")
+    p.add_argument("--no-gt", action="store_true",
+                   help="panoptic-lifting: ignore rs_semantics/ + rs_instance/ ground truth")
+    p.add_argument("--no-depth", action="store_true",
+                   help="panoptic-lifting, scannet: ignore depth/*.png")
+    p.add_argument("--depth-scale", type=float, default=1e-3, metavar="M",
+                   help="metres per unit of the uint16 depth PNGs, in the input and the output "
+                        "(default: %(default)s = millimetres)")
+    p.add_argument("--intrinsics-size", metavar="WxH",
+                   help="panoptic-lifting, scannet: image size intrinsic_color.txt refers to, when the colour "
+                        "images were resized since (default: the images' own size)")
+    p.add_argument("--scene-box", action="store_true",
+                   help="colmap: write a bounded scene_box around the sparse points (points3D.txt|bin)")
+    p.add_argument("--downscale", type=int, default=1, metavar="N",
+                   help="shrink images, labels and depth by N (intrinsics follow) (default: %(default)s)")
+    p.add_argument("--image-format", choices=["png", "jpg"], default="png",
+                   help="format of the written images (default: %(default)s, lossless)")
+    p.add_argument("--overwrite", action="store_true",
+                   help="replace a scene folder already at --out (only the files a scene folder holds)")
+    p.set_defaults(func=run)
+    return p
+
+
+def run(args: argparse.Namespace) -> int:
+    """Run ``lift3d convert``; returns the exit code (bad input raises :class:`InputError`)."""
+    from lift3d.convert import WriteOptions, parse_id_list, summary
+    from lift3d.convert.predictions import load_categories
+
+    if args.test_every < 0:
+        raise InputError("--test-every", "must be >= 0")
+    if args.downscale < 1:
+        raise InputError("--downscale", "must be a positive integer")
+    if not args.depth_scale > 0:
+        raise InputError("--depth-scale", "must be positive")
+    categories = load_categories(args.categories) if args.categories is not None else None
+    things = parse_id_list(args.things, "--things")
+    options = WriteOptions(downscale=args.downscale, image_ext=f".{args.image_format}",
+                           depth_scale=args.depth_scale, overwrite=args.overwrite)
+    _reject_foreign_flags(args)
+
+    if args.source == "colmap":
+        from lift3d.convert import colmap
+
+        if args.predictions is None:
+            raise InputError("--predictions", "required with --from colmap (2D panoptic predictions per image)")
+        scene = colmap.convert(args.src, args.out, predictions=args.predictions, images=args.images,
+                               categories=categories, things=things, test_every=args.test_every,
+                               scene_box=args.scene_box, options=options)
+    elif args.source == "scannet":
+        from lift3d.convert import scannet
+
+        if args.predictions is None:
+            raise InputError("--predictions", "required with --from scannet (2D panoptic predictions per image)")
+        scene = scannet.convert(args.src, args.out, predictions=args.predictions, categories=categories,
+                                things=things, test_every=args.test_every, use_depth=not args.no_depth,
+                                intrinsics_size=scannet.parse_size(args.intrinsics_size), options=options)
+    else:
+        from lift3d.convert import panoptic_lifting
+        from lift3d.convert.scannet import parse_size
+
+        scene = panoptic_lifting.convert(
+            args.src, args.out, categories=categories, things=things, labels_prefix=args.labels_prefix,
+            use_confidence=not args.no_confidence, use_gt=not args.no_gt, use_depth=not args.no_depth,
+            test_every=args.test_every, intrinsics_size=parse_size(args.intrinsics_size), options=options)
+    print(summary(scene))
+    return 0
+
+
+# Flags that only one source reads: passing them to another is a mistake worth a clear message.
+_ONLY_FOR = {
+    "images": ("--images", {"colmap"}),
+    "scene_box": ("--scene-box", {"colmap"}),
+    "predictions": ("--predictions", {"colmap", "scannet"}),
+    "intrinsics_size": ("--intrinsics-size", {"scannet", "panoptic-lifting"}),
+    "no_depth": ("--no-depth", {"scannet", "panoptic-lifting"}),
+    "no_gt": ("--no-gt", {"panoptic-lifting"}),
+    "no_confidence": ("--no-confidence", {"panoptic-lifting"}),
+}
+
+
+def _reject_foreign_flags(args: argparse.Namespace) -> None:
+    for attr, (flag, sources) in _ONLY_FOR.items():
+        value = getattr(args, attr)
+        if value not in (None, False) and args.source not in sources:
+            raise InputError(flag, f"is not used with --from {args.source} (only with {', '.join(sorted(sources))})")
+    if args.labels_prefix != "m2f" and args.source != "panoptic-lifting":
+        raise InputError("--labels-prefix", f"is not used with --from {args.source} (only with panoptic-lifting)")
