@@ -1,0 +1,226 @@
+"""How rays combine points: proposal sampling, the field at the final samples, compositing.
+
+:func:`render_rays` renders one batch (training) and :func:`render_rays_chunked` any number of rays
+without gradients (evaluation, export). The field is anything with ``geometry``, ``color`` and ``labels``
+(see :mod:`lift3d.field.field`).
+
+Speed on CPU (PERFORMANCE.md): density is needed at every sample, but the colour, semantic and instance
+decoders only matter where a sample has weight; they run only on samples with ``w > head_weight_threshold``
+(exact up to that threshold; no deferred decoding).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import torch
+from torch import Tensor, nn
+
+from lift3d.render.samplers import interlevel_loss, ray_aabb, sample_pdf, spacing_fn_inv, uniform_edges
+from lift3d.render.volume import composite, interval_midpoints, render_weights
+
+
+@dataclass
+class SamplingConfig:
+    """How rays are sampled and composited."""
+
+    near_plane: float = 0.05
+    """Closest distance rendered (normalised scene units)."""
+    far_plane: float = 1000.0
+    """Farthest distance for unbounded scenes (normalised units; the contracted grid reaches infinity)."""
+    proposal_resolutions: tuple[int, ...] = (64,)
+    """Resolution of each proposal density grid (coarse to fine); empty = no proposal sampling."""
+    proposal_samples: tuple[int, ...] = (64,)
+    """Uniform samples fed to each proposal level."""
+    num_samples: int = 32
+    """Samples per ray at which the full field is evaluated."""
+    head_weight_threshold: float = 1e-4
+    """Colour/label decoders run only on samples whose weight exceeds this (0 = all samples)."""
+    label_max_samples: int = 8
+    """Semantic/instance decoders run on at most this many highest-weight samples per ray (0 = no cap).
+    Once geometry has formed, a ray's weight sits on a few samples; before that, the cap keeps the wide
+    label decoders from running on every sample."""
+    background: str = "black"
+    """Colour behind the last sample: ``black``, ``white`` or ``random`` (training only; black at test)."""
+    chunk_size: int = 4096
+    """Rays per chunk when rendering without gradients."""
+
+
+@dataclass
+class RenderOutputs:
+    """What :func:`render_rays` returns (per ray unless noted)."""
+
+    rgb: Tensor  # [R, 3]
+    depth: Tensor  # [R] expected distance along the (unit) ray, normalised units
+    opacity: Tensor  # [R]
+    semantic: Tensor | None  # [R, U] composited logits (weights detached)
+    instance: Tensor | None  # [R, V] composited logits (weights detached)
+    weights: Tensor  # [R, S]
+    t_mid: Tensor  # [R, S]
+    distill: Tensor  # scalar: Σ over proposal levels of the inter-level loss (0 without proposals)
+
+
+def near_far(origins: Tensor, dirs: Tensor, cfg: SamplingConfig, bounded: bool) -> tuple[Tensor, Tensor]:
+    """Per-ray ``near``/``far``: the box ``[-1, 1]^3`` for bounded scenes, the near/far planes otherwise.
+    Rays that miss a bounded box get ``far == near`` (nothing rendered)."""
+    if bounded:
+        t0, t1 = ray_aabb(origins, dirs)
+        near = t0.clamp_min(cfg.near_plane)
+        far = torch.maximum(t1, near)
+        return near, far
+    near = torch.full_like(origins[:, 0], cfg.near_plane)
+    return near, torch.full_like(near, cfg.far_plane)
+
+
+def render_rays(
+    field: nn.Module,
+    proposals: nn.ModuleList,
+    origins: Tensor,
+    dirs: Tensor,
+    cfg: SamplingConfig,
+    *,
+    bounded: bool,
+    training: bool = False,
+    with_labels: bool = True,
+    background: Tensor | None = None,
+    generator: torch.Generator | None = None,
+) -> RenderOutputs:
+    """Render a batch of rays.
+
+    Parameters
+    ----------
+    field : nn.Module
+        A :class:`~lift3d.field.field.PanopticField` (or anything with its interface).
+    proposals : nn.ModuleList
+        :class:`~lift3d.field.field.ProposalGrid` per proposal level (may be empty).
+    origins, dirs : Tensor
+        ``[R, 3]`` ray origins and unit directions, normalised scene coordinates.
+    cfg : SamplingConfig
+    bounded : bool
+        Scene inside ``[-1, 1]^3`` (linear spacing) or unbounded (contracted, lin/disparity spacing).
+    training : bool
+        Jittered samples; random background if configured.
+    with_labels : bool
+        Also composite semantic and instance logits.
+    background : Tensor, optional
+        ``[R, 3]`` or ``[3]`` colour behind the ray (overrides ``cfg.background``).
+    """
+    n_rays = origins.shape[0]
+    spacing = "linear" if bounded else "lindisp"
+    near, far = near_far(origins, dirs, cfg, bounded)
+    space = field.space
+
+    def points(s_edges: Tensor) -> tuple[Tensor, Tensor, Tensor]:
+        t_edges = spacing_fn_inv(s_edges, spacing)
+        t_mid, deltas = interval_midpoints(t_edges)
+        x = origins[:, None, :] + dirs[:, None, :] * t_mid[..., None]
+        return x.reshape(-1, 3), t_mid, deltas
+
+    prop_levels: list[tuple[Tensor, Tensor]] = []
+    if len(proposals):
+        s_edges = uniform_edges(near, far, cfg.proposal_samples[0], spacing, training, generator)
+        for level, prop in enumerate(proposals):
+            x, _, deltas = points(s_edges)
+            u, valid = space(x)
+            sigma = prop(u, valid).view(n_rays, -1)
+            w, _ = render_weights(sigma, deltas)
+            prop_levels.append((s_edges, w))
+            n_next = cfg.proposal_samples[level + 1] if level + 1 < len(proposals) else cfg.num_samples
+            s_edges = sample_pdf(s_edges, w, n_next, training, generator=generator)
+    else:
+        s_edges = uniform_edges(near, far, cfg.num_samples, spacing, training, generator)
+
+    x, t_mid, deltas = points(s_edges)
+    n_samples = t_mid.shape[1]
+    sigma, geo, u = field.geometry(x)
+    weights, _ = render_weights(sigma.view(n_rays, n_samples), deltas)
+
+    # Decoders only where the sample matters (weights are constants for this choice).
+    keep = (weights.detach() > cfg.head_weight_threshold).reshape(-1)
+    idx = keep.nonzero().squeeze(1)
+    dirs_s = dirs[:, None, :].expand(n_rays, n_samples, 3).reshape(-1, 3)
+    rgb_s = geo.new_zeros(n_rays * n_samples, 3)
+    rgb_s = rgb_s.index_copy(0, idx, field.color(geo.index_select(0, idx), dirs_s.index_select(0, idx)))
+    rgb = composite(weights, rgb_s.view(n_rays, n_samples, 3))
+    opacity = weights.sum(-1)
+
+    if background is None:
+        if cfg.background == "white":
+            background = torch.ones(3, device=rgb.device, dtype=rgb.dtype)
+        elif cfg.background == "random" and training:
+            background = torch.rand(n_rays, 3, device=rgb.device, dtype=rgb.dtype, generator=generator)
+        else:
+            background = None
+    if background is not None:
+        rgb = rgb + (1.0 - opacity)[:, None] * background
+
+    semantic = instance = None
+    if with_labels:
+        w_det = weights.detach()  # labels must not carve geometry
+        lidx = _label_samples(w_det, cfg) if 0 < cfg.label_max_samples < n_samples else idx
+        sem_s, inst_s = field.labels(u.index_select(0, lidx), geo.index_select(0, lidx))
+        semantic = composite(w_det, _scatter_rows(sem_s, lidx, n_rays * n_samples).view(n_rays, n_samples, -1))
+        if inst_s is not None:
+            instance = composite(w_det, _scatter_rows(inst_s, lidx, n_rays * n_samples).view(n_rays, n_samples, -1))
+
+    distill = weights.new_zeros(())
+    if training and prop_levels:
+        for prop_edges, prop_w in prop_levels:
+            distill = distill + interlevel_loss(s_edges, weights, prop_edges, prop_w)
+
+    depth = (weights * t_mid).sum(-1)
+    return RenderOutputs(rgb=rgb, depth=depth, opacity=opacity, semantic=semantic, instance=instance,
+                         weights=weights, t_mid=t_mid, distill=distill)
+
+
+def _label_samples(weights: Tensor, cfg: SamplingConfig) -> Tensor:
+    """Flat indices of the ``label_max_samples`` highest-weight samples of every ray that also pass the
+    weight threshold. ``weights`` ``[R, S]`` → ``[K]``."""
+    n_rays, n_samples = weights.shape
+    top_w, top_i = weights.topk(cfg.label_max_samples, dim=1)
+    flat = top_i + torch.arange(n_rays, device=weights.device)[:, None] * n_samples
+    return flat[top_w > cfg.head_weight_threshold]
+
+
+def _scatter_rows(values: Tensor, idx: Tensor, n: int) -> Tensor:
+    """Rows ``values`` ``[K, C]`` placed at ``idx`` in a zero ``[n, C]`` tensor (differentiable)."""
+    return values.new_zeros(n, values.shape[1]).index_copy(0, idx, values)
+
+
+@torch.no_grad()
+def render_rays_chunked(
+    field: nn.Module,
+    proposals: nn.ModuleList,
+    origins: Tensor,
+    dirs: Tensor,
+    cfg: SamplingConfig,
+    *,
+    bounded: bool,
+    with_labels: bool = True,
+    chunk_size: int | None = None,
+    progress: bool = False,
+) -> dict[str, Tensor]:
+    """Render any number of rays in chunks without gradients.
+
+    Returns
+    -------
+    dict
+        ``rgb`` ``[R, 3]``, ``depth`` ``[R]``, ``opacity`` ``[R]`` and with labels ``semantic`` ``[R, U]``
+        and ``instance`` ``[R, V]`` *probabilities* (softmax of the composited logits).
+    """
+    from lift3d.utils.progress import progress_bar
+
+    chunk = chunk_size or cfg.chunk_size
+    outs: dict[str, list[Tensor]] = {}
+    starts = range(0, origins.shape[0], chunk)
+    for s in progress_bar(starts, desc="render", disable=not progress, leave=False, unit="chunk"):
+        r = render_rays(field, proposals, origins[s:s + chunk], dirs[s:s + chunk], cfg, bounded=bounded,
+                        training=False, with_labels=with_labels)
+        parts = {"rgb": r.rgb, "depth": r.depth, "opacity": r.opacity}
+        if r.semantic is not None:
+            parts["semantic"] = torch.softmax(r.semantic, -1)
+        if r.instance is not None:
+            parts["instance"] = torch.softmax(r.instance, -1)
+        for k, v in parts.items():
+            outs.setdefault(k, []).append(v)
+    return {k: torch.cat(v) for k, v in outs.items()}

@@ -1,0 +1,100 @@
+"""Volume rendering as small pure functions (PAPER.md "Rendering").
+
+For a ray with samples ``i = 1..N`` at distances ``t_i`` and interval lengths ``Δt_i``::
+
+    w_i = exp(-Σ_{j<i} σ_j Δt_j) · (1 - exp(-σ_i Δt_i))
+    C = Σ w_i c_i,   U = softmax(Σ w_i u_i),   V = softmax(Σ w_i v_i),   depth = Σ w_i t_i
+
+Numerics: optical depths ``τ = σ Δt`` are accumulated in log space (an exclusive cumulative sum, then one
+``exp``), ``1 - exp(-τ)`` uses ``expm1``; non-finite or negative ``τ`` is sanitised, so σ from 0 to 1e6,
+``Δt → 0``, rays that hit nothing and far planes at 1e4 all give finite weights with ``Σ w ≤ 1``.
+"""
+
+from __future__ import annotations
+
+import torch
+from torch import Tensor
+
+# Optical depth beyond which transmittance is exactly 0 in float32 (exp(-104) underflows); clamping keeps
+# `inf - inf` out of the cumulative sum.
+_TAU_MAX = 1e4
+
+
+def optical_depth(sigma: Tensor, deltas: Tensor) -> Tensor:
+    """``τ = σ Δt`` made safe: NaN → 0, negatives → 0, +inf → a large finite value.
+
+    ``sigma``, ``deltas``: ``[n_rays, n_samples]`` → ``[n_rays, n_samples]``.
+    """
+    tau = sigma * deltas
+    return torch.nan_to_num(tau, nan=0.0, posinf=_TAU_MAX).clamp(0.0, _TAU_MAX)
+
+
+def render_weights(sigma: Tensor, deltas: Tensor) -> tuple[Tensor, Tensor]:
+    """Rendering weights and transmittance.
+
+    Parameters
+    ----------
+    sigma : Tensor
+        ``[n_rays, n_samples]`` densities (≥ 0).
+    deltas : Tensor
+        ``[n_rays, n_samples]`` interval lengths ``Δt`` (≥ 0).
+
+    Returns
+    -------
+    weights : Tensor
+        ``[n_rays, n_samples]`` ``w_i`` ≥ 0 with ``Σ_i w_i ≤ 1``.
+    transmittance : Tensor
+        ``[n_rays, n_samples]`` ``T_i = exp(-Σ_{j<i} τ_j)`` (non-increasing along the ray).
+
+    Examples
+    --------
+    >>> import torch
+    >>> w, T = render_weights(torch.tensor([[0.0, 1e6, 5.0]]), torch.tensor([[1.0, 1.0, 1.0]]))
+    >>> w.tolist(), T.tolist()
+    ([[0.0, 1.0, 0.0]], [[1.0, 1.0, 0.0]])
+    """
+    tau = optical_depth(sigma, deltas)
+    # Exclusive cumulative sum in log space: log T_i = -Σ_{j<i} τ_j.
+    cum = torch.cumsum(tau, dim=-1)
+    log_t = -torch.cat([torch.zeros_like(cum[..., :1]), cum[..., :-1]], dim=-1)
+    transmittance = torch.exp(log_t)
+    alpha = -torch.expm1(-tau)  # 1 - exp(-τ), accurate for tiny τ
+    return transmittance * alpha, transmittance
+
+
+def render_weights_reference(sigma: Tensor, deltas: Tensor) -> Tensor:
+    """Plain loop version of :func:`render_weights` (float64-friendly; used in tests)."""
+    n_rays, n_samples = sigma.shape
+    w = torch.zeros_like(sigma)
+    for r in range(n_rays):
+        trans = torch.ones((), dtype=sigma.dtype)
+        for i in range(n_samples):
+            a = 1 - torch.exp(-sigma[r, i] * deltas[r, i])
+            w[r, i] = trans * a
+            trans = trans * (1 - a)
+    return w
+
+
+def composite(weights: Tensor, values: Tensor) -> Tensor:
+    """Weighted sum along the ray: ``weights`` ``[R, S]``, ``values`` ``[R, S, C]`` → ``[R, C]`` (a batched
+    matrix product, which is much faster on CPU than a broadcast multiply + sum)."""
+    return torch.bmm(weights.unsqueeze(1), values).squeeze(1)
+
+
+def render_depth(weights: Tensor, t_mid: Tensor, normalize: bool = False) -> Tensor:
+    """Expected depth ``Σ w_i t_i`` ``[R]``; with ``normalize`` divided by the opacity (depth of the surface
+    the ray sees, ignoring how opaque it is)."""
+    depth = (weights * t_mid).sum(-1)
+    if normalize:
+        depth = depth / weights.sum(-1).clamp_min(1e-8)
+    return depth
+
+
+def render_opacity(weights: Tensor) -> Tensor:
+    """Accumulated opacity ``Σ w_i`` ``[R]`` in ``[0, 1]``."""
+    return weights.sum(-1)
+
+
+def interval_midpoints(edges: Tensor) -> tuple[Tensor, Tensor]:
+    """``edges`` ``[R, S+1]`` (sorted sample boundaries) → midpoints ``[R, S]``, lengths ``Δt`` ``[R, S]``."""
+    return 0.5 * (edges[..., 1:] + edges[..., :-1]), (edges[..., 1:] - edges[..., :-1]).clamp_min(0.0)

@@ -1,0 +1,79 @@
+"""Per-image linear assignment of arbitrary 2D instance ids to the field's instance channels.
+
+A 2D segmenter numbers the instances of every frame on its own; the field has ``V`` instance channels that
+must mean the same object in every view. Panoptic Lifting (and the paper) solve, per image, the linear
+assignment problem with cost ``C[l, k] = −mean_{p ∈ l} P_k(p)`` (the mean predicted probability of channel
+``k`` over the pixels of 2D instance ``l``), with ``scipy.optimize.linear_sum_assignment``.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import torch
+from scipy.optimize import linear_sum_assignment
+from torch import Tensor
+
+
+def instance_cost_matrix(probs: Tensor, ids: Tensor) -> tuple[Tensor, Tensor]:
+    """Cost matrix of one image.
+
+    Parameters
+    ----------
+    probs : Tensor
+        ``[n, V]`` predicted instance probabilities of the image's thing pixels.
+    ids : Tensor
+        ``[n]`` 2D instance ids (any positive integers).
+
+    Returns
+    -------
+    cost : Tensor
+        ``[K, V]`` ``−mean`` probability per (2D id, channel).
+    unique_ids : Tensor
+        ``[K]`` the 2D ids, in the row order of ``cost``.
+    """
+    unique_ids, inv = torch.unique(ids, return_inverse=True)
+    sums = torch.zeros(len(unique_ids), probs.shape[1], dtype=probs.dtype, device=probs.device)
+    sums.index_add_(0, inv, probs)
+    counts = torch.bincount(inv, minlength=len(unique_ids)).to(probs.dtype)
+    return -(sums / counts[:, None]), unique_ids
+
+
+def linear_assign_instances(probs: Tensor, ids: Tensor, image_ids: Tensor | None = None) -> Tensor:
+    """Target instance channel for every pixel, by per-image Hungarian matching.
+
+    Parameters
+    ----------
+    probs : Tensor
+        ``[n, V]`` predicted probabilities (constants: no gradient flows through the matching).
+    ids : Tensor
+        ``[n]`` 2D instance ids (> 0), meaningful only within one image.
+    image_ids : Tensor, optional
+        ``[n]`` image of every pixel (default: all one image).
+
+    Returns
+    -------
+    Tensor
+        ``[n]`` int64 channel per pixel; ``-1`` where the image has more 2D instances than channels and
+        this one was left unmatched.
+
+    Examples
+    --------
+    >>> import torch
+    >>> probs = torch.tensor([[0.1, 0.9], [0.2, 0.8], [0.7, 0.3]])
+    >>> linear_assign_instances(probs, torch.tensor([5, 5, 9])).tolist()
+    [1, 1, 0]
+    """
+    probs = probs.detach()
+    if image_ids is None:
+        image_ids = torch.zeros_like(ids)
+    target = torch.full(ids.shape, -1, dtype=torch.long, device=ids.device)
+    images = torch.unique(image_ids)
+    for img in images.tolist():
+        sel = (image_ids == img).nonzero().squeeze(1)
+        cost, unique_ids = instance_cost_matrix(probs[sel], ids[sel])
+        rows, cols = linear_sum_assignment(cost.double().cpu().numpy())
+        lut = np.full(len(unique_ids), -1, dtype=np.int64)
+        lut[rows] = cols
+        _, inv = torch.unique(ids[sel], return_inverse=True)
+        target[sel] = torch.from_numpy(lut).to(ids.device)[inv]
+    return target

@@ -1,0 +1,284 @@
+"""Typed training configuration: dataclasses whose fields document themselves and become CLI flags.
+
+A run's settings are resolved in this order (later wins)::
+
+    dataclass defaults  <  configs/<preset>.yaml  <  configs/indoor|outdoor.yaml  <  --section.field flags
+
+and then sizes the scene determines (U, V, grid resolution, bounded/unbounded) are filled in where a
+field is 0/"auto". The fully resolved configuration is written to the run's ``config.yml``.
+
+Every leaf field is a flag, e.g. ``--optim.steps 2000``, ``--losses.feature 0``,
+``--field.understanding-resolutions 16 32``. The text under a field is its ``--help``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import ast
+import dataclasses
+import functools
+import inspect
+import textwrap
+import typing
+from dataclasses import dataclass
+from dataclasses import field as dc_field
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+from lift3d.errors import InputError
+from lift3d.field.field import FieldConfig
+from lift3d.render.renderer import SamplingConfig
+from lift3d.train.losses import LossConfig
+
+CONFIG_DIR = Path(__file__).resolve().parent.parent / "configs"
+PRESETS = ("fast", "balanced", "quality")
+
+
+@dataclass
+class DataConfig:
+    """How training rays are drawn from the images."""
+
+    images_per_batch: int = 4
+    """Images each step draws its rays from (instance assignment is solved per image)."""
+    rays_per_image: int = 256
+    """Random rays per image and step (besides the patch)."""
+    patch_size: int = 16
+    """Side of the square patch per image and step (L_feat and L_seg use patches); 0 = no patches."""
+    instance_headroom: float = 2.0
+    """V = max(16, headroom × the most thing segments in one frame), rounded up to a multiple of 8."""
+    max_instance_channels: int = 128
+    """Upper bound on the derived number of instance channels V."""
+
+
+@dataclass
+class OptimConfig:
+    """Optimiser and schedule (Adam, exponential decay)."""
+
+    steps: int = 3000
+    """Training steps."""
+    lr_grid: float = 0.02
+    """Learning rate of the voxel grids."""
+    lr_mlp: float = 0.002
+    """Learning rate of the decoders."""
+    lr_final_factor: float = 0.1
+    """Learning rates decay exponentially to this fraction at the last step."""
+    warmup_steps: int = 50
+    """Linear learning-rate warm-up."""
+    max_bad_steps: int = 20
+    """Consecutive steps with a non-finite loss before training stops (the step is skipped otherwise)."""
+
+
+@dataclass
+class TrainerConfig:
+    """Run control: devices, logging, evaluation and checkpoints."""
+
+    seed: int = 0
+    """Seed of every random number generator."""
+    device: str = "auto"
+    """``auto`` (CUDA when available), ``cpu`` or ``cuda[:N]``."""
+    threads: int = 0
+    """CPU threads (0 = every core this process may use)."""
+    eval_every: int = 500
+    """Steps between evaluations on held-out views (0 = only at the end)."""
+    eval_images: int = 4
+    """Held-out views rendered per periodic evaluation."""
+    checkpoint_every: int = 1000
+    """Steps between checkpoints (one is always written at the end)."""
+    keep_checkpoints: int = 2
+    """Most recent checkpoints kept on disk."""
+    log_every: int = 25
+    """Steps between log lines in log.jsonl."""
+    time_budget: float = 0.0
+    """Stop after this many seconds of training (0 = no limit); the benchmark's equal-budget ablation."""
+    feature_weights: str = ""
+    """Perceptual prior weights (state dict for EfficientNet-Lite0 or a TorchScript module); empty = built-in."""
+
+
+@dataclass
+class Config:
+    """Everything a run needs. ``scene`` holds what was derived from the scene (written to config.yml)."""
+
+    preset: str = "fast"
+    data: DataConfig = dc_field(default_factory=DataConfig)
+    field: FieldConfig = dc_field(default_factory=FieldConfig)
+    sampling: SamplingConfig = dc_field(default_factory=SamplingConfig)
+    losses: LossConfig = dc_field(default_factory=LossConfig)
+    optim: OptimConfig = dc_field(default_factory=OptimConfig)
+    trainer: TrainerConfig = dc_field(default_factory=TrainerConfig)
+    scene: dict = dc_field(default_factory=dict)
+
+    def to_dict(self) -> dict:
+        return to_dict(self)
+
+
+SECTIONS = ("data", "field", "sampling", "losses", "optim", "trainer")
+
+
+# ------------------------------------------------------------------------------------------ dict <-> dataclass
+def to_dict(obj: Any) -> Any:
+    """A dataclass tree as plain dicts/lists (tuples become lists) for YAML."""
+    if dataclasses.is_dataclass(obj):
+        return {f.name: to_dict(getattr(obj, f.name)) for f in dataclasses.fields(obj)}
+    if isinstance(obj, (list, tuple)):
+        return [to_dict(x) for x in obj]
+    if isinstance(obj, dict):
+        return {k: to_dict(v) for k, v in obj.items()}
+    return obj
+
+
+def _coerce(tp: Any, value: Any, where: str) -> Any:
+    origin = typing.get_origin(tp)
+    if origin in (tuple, list):
+        if not isinstance(value, (list, tuple)):
+            value = [value]
+        args = typing.get_args(tp)
+        inner = args[0] if args else Any
+        return tuple(_coerce(inner, v, where) for v in value)
+    if tp is bool:
+        if isinstance(value, str):
+            if value.lower() in ("1", "true", "yes", "on"):
+                return True
+            if value.lower() in ("0", "false", "no", "off"):
+                return False
+            raise InputError(where, f"expected true/false, got {value!r}")
+        return bool(value)
+    if tp in (int, float, str):
+        try:
+            if tp is int and isinstance(value, float) and not value.is_integer():
+                raise ValueError
+            return tp(value)
+        except (TypeError, ValueError):
+            raise InputError(where, f"expected {tp.__name__}, got {value!r}") from None
+    return value
+
+
+@functools.lru_cache(maxsize=None)
+def _hints(cls: type) -> dict[str, Any]:
+    return typing.get_type_hints(cls)
+
+
+def update_dataclass(obj: Any, values: dict, where: str) -> Any:
+    """Return a copy of dataclass ``obj`` with ``values`` (nested dicts for nested dataclasses) applied.
+    Unknown keys are an error naming ``where``."""
+    if not isinstance(values, dict):
+        raise InputError(where, "expected a mapping")
+    names = {f.name for f in dataclasses.fields(obj)}
+    hints = _hints(type(obj))
+    changes = {}
+    for key, val in values.items():
+        if key not in names:
+            raise InputError(where, f"unknown setting {key!r} (known: {', '.join(sorted(names))})")
+        cur = getattr(obj, key)
+        if dataclasses.is_dataclass(cur):
+            changes[key] = update_dataclass(cur, val, f"{where}:{key}")
+        elif hints[key] is dict:
+            changes[key] = dict(val or {})
+        else:
+            changes[key] = _coerce(hints[key], val, f"{where}:{key}")
+    return dataclasses.replace(obj, **changes)
+
+
+def config_from_dict(d: dict, where: str = "config") -> Config:
+    return update_dataclass(Config(), d, where)
+
+
+def load_yaml(path: Path) -> dict:
+    if not path.is_file():
+        raise InputError(path, "file not found")
+    try:
+        data = yaml.safe_load(path.read_text()) or {}
+    except yaml.YAMLError as exc:
+        raise InputError(path, f"not valid YAML ({exc})") from exc
+    if not isinstance(data, dict):
+        raise InputError(path, "must hold a mapping of settings")
+    return data
+
+
+def preset_path(name: str) -> Path:
+    """``fast``/``balanced``/``quality``/``indoor``/``outdoor`` → ``configs/<name>.yaml``; a path stays."""
+    p = Path(name)
+    if p.suffix in (".yaml", ".yml"):
+        return p
+    path = CONFIG_DIR / f"{name}.yaml"
+    if not path.is_file():
+        known = sorted(x.stem for x in CONFIG_DIR.glob("*.yaml"))
+        raise InputError("--preset", f"unknown preset {name!r} (known: {', '.join(known)})")
+    return path
+
+
+def load_config(preset: str = "fast", kind: str | None = None, overrides: dict | None = None) -> Config:
+    """Defaults < preset < indoor/outdoor defaults < overrides.
+
+    Examples
+    --------
+    >>> cfg = load_config("fast", overrides={"optim": {"steps": 10}})
+    >>> cfg.optim.steps, cfg.preset
+    (10, 'fast')
+    """
+    cfg = Config(preset=Path(preset).stem)
+    path = preset_path(preset)
+    cfg = update_dataclass(cfg, {k: v for k, v in load_yaml(path).items()}, str(path))
+    if kind:
+        kpath = preset_path(kind)
+        cfg = update_dataclass(cfg, load_yaml(kpath), str(kpath))
+    if overrides:
+        cfg = update_dataclass(cfg, overrides, "command line")
+    return cfg
+
+
+def save_config(cfg: Config, path: Path) -> None:
+    from lift3d.utils.atomic import write_text_atomic
+
+    write_text_atomic(path, yaml.safe_dump(cfg.to_dict(), sort_keys=False))
+
+
+# ------------------------------------------------------------------------------------------ CLI flags
+@functools.lru_cache(maxsize=None)
+def field_docs(cls: type) -> dict[str, str]:
+    """The string literal under each dataclass field (its documentation), read from the source."""
+    try:
+        src = textwrap.dedent(inspect.getsource(cls))
+    except (OSError, TypeError):
+        return {}
+    body = ast.parse(src).body[0].body  # type: ignore[attr-defined]
+    docs: dict[str, str] = {}
+    for prev, node in zip(body, body[1:]):
+        if (isinstance(prev, ast.AnnAssign) and isinstance(prev.target, ast.Name)
+                and isinstance(node, ast.Expr) and isinstance(node.value, ast.Constant)
+                and isinstance(node.value.value, str)):
+            docs[prev.target.id] = " ".join(node.value.value.split())
+    return docs
+
+
+def add_config_flags(parser: argparse.ArgumentParser) -> None:
+    """One flag per leaf setting: ``--<section>.<field-name>`` (dest ``cfg:<section>.<field>``)."""
+    defaults = Config()
+    for section in SECTIONS:
+        sub = getattr(defaults, section)
+        docs = field_docs(type(sub))
+        hints = _hints(type(sub))
+        group = parser.add_argument_group(f"{section} settings", (type(sub).__doc__ or "").strip().split("\n")[0])
+        for f in dataclasses.fields(sub):
+            tp = hints[f.name]
+            flag = f"--{section}.{f.name.replace('_', '-')}"
+            kwargs: dict[str, Any] = dict(dest=f"cfg:{section}.{f.name}", default=argparse.SUPPRESS,
+                                          help=f"{docs.get(f.name, '')} (default: {getattr(sub, f.name)!r})".replace("%", "%%"))
+            if typing.get_origin(tp) in (tuple, list):
+                kwargs.update(nargs="*", metavar="V")
+            elif tp is bool:
+                kwargs.update(metavar="{true,false}")
+            else:
+                kwargs.update(metavar=tp.__name__.upper() if isinstance(tp, type) else "V")
+            group.add_argument(flag, **kwargs)
+
+
+def overrides_from_args(args: argparse.Namespace) -> dict:
+    """Collect the ``--section.field`` flags the user gave into a nested dict."""
+    out: dict[str, dict] = {}
+    for key, val in vars(args).items():
+        if key.startswith("cfg:"):
+            section, name = key[4:].split(".", 1)
+            out.setdefault(section, {})[name] = val
+    return out

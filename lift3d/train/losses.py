@@ -1,0 +1,169 @@
+"""Every loss of the paper as a pure function (PAPER.md "Losses").
+
+``L = L_color + 1.2 ΣL_distill + 0.1 L_sem + 0.1 L_ins + 0.12 L_seg + 0.2 L_feat + 0.001 (L_tv + L_disp)``
+
+Label tensors use *channel* space: semantic target ``k ≥ 1`` is a channel of the semantic head (0 = void,
+never a target; ``-1`` = ignore), instance ids are per-image compact 2D ids (0 = not a thing pixel).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import torch
+import torch.nn.functional as F
+from torch import Tensor
+
+from lift3d.train.assignment import linear_assign_instances
+
+
+@dataclass
+class LossConfig:
+    """Loss weights (paper defaults) and switches for ablations. A weight of 0 turns a loss off."""
+
+    color: float = 1.0
+    """L_color: Charbonnier photometric loss."""
+    charbonnier_eps: float = 1e-4
+    """ε of the Charbonnier loss."""
+    distill: float = 1.2
+    """L_distill: inter-level (proposal) distillation."""
+    semantic: float = 0.1
+    """L_sem: confidence-weighted semantic cross-entropy."""
+    instance: float = 0.1
+    """L_ins: instance cross-entropy after per-image linear assignment."""
+    segment: float = 0.12
+    """L_seg: segment-consistency loss over rays sharing a 2D segment."""
+    segment_min_rays: int = 4
+    """Smallest ray group (same image, same 2D segment) that L_seg uses."""
+    segment_start: float = 0.3
+    """Fraction of the training steps before L_seg starts: its target is the field's own dominant class, so
+    switched on from step 0 it locks in whatever class the untrained field happens to favour."""
+    feature: float = 0.2
+    """L_feat: perceptual-prior feature loss on rendered vs observed patches."""
+    regularization: float = 0.001
+    """Weight of L_tv + L_disp."""
+    tv_samples: int = 4096
+    """Grid nodes per level and axis sampled for L_tv each step."""
+    use_confidence: bool = True
+    """Weight label losses by the pseudo-label confidence λ_p (segment score × pixel confidence)."""
+
+
+def charbonnier_loss(pred: Tensor, target: Tensor, eps: float = 1e-4) -> Tensor:
+    """``mean(sqrt((C − Ĉ)² + ε²))``; ``pred``, ``target``: ``[R, 3]``.
+
+    Examples
+    --------
+    >>> import torch
+    >>> round(charbonnier_loss(torch.zeros(1, 3), torch.full((1, 3), 0.5)).item(), 6)
+    0.5
+    """
+    return torch.sqrt((pred - target) ** 2 + eps * eps).mean()
+
+
+def weighted_cross_entropy(logits: Tensor, target: Tensor, weight: Tensor | None = None) -> Tensor:
+    """``−1/|P| Σ_p λ_p log softmax(logits_p)[target_p]`` over rays with ``target ≥ 0``.
+
+    Parameters
+    ----------
+    logits : Tensor
+        ``[R, C]`` composited logits.
+    target : Tensor
+        ``[R]`` int64 channel index; ``< 0`` = ignored.
+    weight : Tensor, optional
+        ``[R]`` confidence λ_p in ``[0, 1]``.
+
+    Returns
+    -------
+    Tensor
+        Scalar (0 when no ray has a target).
+    """
+    valid = target >= 0
+    if not bool(valid.any()):
+        return logits.sum() * 0.0
+    logp = F.log_softmax(logits[valid], dim=-1)
+    nll = -logp.gather(1, target[valid, None]).squeeze(1)
+    if weight is not None:
+        nll = nll * weight[valid]
+    return nll.mean()
+
+
+def semantic_loss(sem_logits: Tensor, sem_target: Tensor, confidence: Tensor | None) -> Tensor:
+    """L_sem: void (channel 0) pixels are ignored. ``sem_target`` ``[R]`` channel ids (0 = void)."""
+    target = torch.where(sem_target > 0, sem_target, torch.full_like(sem_target, -1))
+    return weighted_cross_entropy(sem_logits, target, confidence)
+
+
+def instance_loss(inst_logits: Tensor, inst_ids: Tensor, image_ids: Tensor, confidence: Tensor | None) -> Tensor:
+    """L_ins: per image, match its 2D instance ids to instance channels (Hungarian, cost = −mean predicted
+    probability), then cross-entropy to the matched channel. Only thing pixels (``inst_ids > 0``) enter.
+
+    Parameters
+    ----------
+    inst_logits : Tensor
+        ``[R, V]`` composited instance logits.
+    inst_ids : Tensor
+        ``[R]`` per-image 2D instance ids (0 = stuff/void/none).
+    image_ids : Tensor
+        ``[R]`` which image each ray comes from.
+    confidence : Tensor, optional
+        ``[R]`` λ_p.
+    """
+    things = inst_ids > 0
+    if not bool(things.any()):
+        return inst_logits.sum() * 0.0
+    logits = inst_logits[things]
+    probs = torch.softmax(logits.detach(), dim=-1)
+    target = linear_assign_instances(probs, inst_ids[things], image_ids[things])
+    return weighted_cross_entropy(logits, target, confidence[things] if confidence is not None else None)
+
+
+def segment_groups(image_ids: Tensor, segment_ids: Tensor, min_rays: int) -> Tensor:
+    """Group id per ray for rays that share (image, 2D segment) with at least ``min_rays`` others in the batch;
+    ``-1`` for void and for too-small groups. ``[R]`` → ``[R]`` int64 (groups numbered 0..G-1)."""
+    key = image_ids.long() * 65536 + segment_ids.long()
+    _, inv, counts = torch.unique(key, return_inverse=True, return_counts=True)
+    ok = (segment_ids > 0) & (counts[inv] >= min_rays)
+    # Renumber the surviving groups densely.
+    kept = torch.zeros_like(counts, dtype=torch.bool)
+    kept[inv[ok]] = True
+    new_id = torch.cumsum(kept.long(), 0) - 1
+    return torch.where(ok, new_id[inv], torch.full_like(inv, -1))
+
+
+def segment_consistency_loss(sem_logits: Tensor, groups: Tensor, confidence: Tensor | None) -> Tensor:
+    """L_seg: in every ray group sharing one 2D segment, the dominant predicted class (argmax of the summed
+    predicted probabilities) becomes a one-hot target ũ for every ray of the group.
+
+    ``sem_logits`` ``[R, U]``, ``groups`` ``[R]`` from :func:`segment_groups`.
+    """
+    valid = groups >= 0
+    if not bool(valid.any()):
+        return sem_logits.sum() * 0.0
+    g = groups[valid]
+    probs = torch.softmax(sem_logits[valid].detach(), dim=-1)
+    probs[:, 0] = 0.0  # void is never a target
+    n_groups = int(g.max()) + 1
+    summed = torch.zeros(n_groups, probs.shape[1], dtype=probs.dtype, device=probs.device).index_add_(0, g, probs)
+    dominant = summed.argmax(-1)
+    target = torch.full_like(groups, -1)
+    target[valid] = dominant[g]
+    return weighted_cross_entropy(sem_logits, target, confidence)
+
+
+def disparity_loss(weights: Tensor, t_mid: Tensor) -> Tensor:
+    """L_disp = ``1/|P| Σ_p Σ_i w_i / t_i`` (discourages floaters near the cameras).
+    ``weights``, ``t_mid``: ``[R, S]``."""
+    return (weights / t_mid.clamp_min(1e-3)).sum(-1).mean()
+
+
+def feature_loss(features_pred: list[Tensor], features_obs: list[Tensor]) -> Tensor:
+    """L_feat = mean over feature locations of ``‖F(C_P) − F(Ĉ_P)‖₂``, averaged over the extractor's layers.
+    Each list holds ``[P, C, h, w]`` maps."""
+    terms = [torch.sqrt(((a - b) ** 2).sum(1) + 1e-12).mean() for a, b in zip(features_pred, features_obs)]
+    return torch.stack(terms).mean()
+
+
+def finite_or_none(x: Tensor) -> float | None:
+    v = float(x.detach())
+    return v if np.isfinite(v) else None

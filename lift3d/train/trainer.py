@@ -1,0 +1,432 @@
+"""``lift3d train``: resolve the configuration from the scene, train, checkpoint, evaluate, summarise.
+
+Typical use::
+
+    from lift3d.train.trainer import train
+    result = train("scenes/room0", preset="fast", output_dir="outputs")
+    print(result.run.path, result.summary["psnr"])
+"""
+
+from __future__ import annotations
+
+import math
+import random
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+
+from lift3d import __version__
+from lift3d.data.scene import Scene, load_scene
+from lift3d.errors import InputError, TrainingDiverged
+from lift3d.field import grids
+from lift3d.render.images import render_frame
+from lift3d.render.rays import RayGenerator
+from lift3d.train.config import Config, config_from_dict, load_config, load_yaml, save_config
+from lift3d.train.data import LabelSpace, TrainingData
+from lift3d.train.losses import (
+    charbonnier_loss,
+    disparity_loss,
+    feature_loss,
+    instance_loss,
+    segment_consistency_loss,
+    segment_groups,
+    semantic_loss,
+)
+from lift3d.train.model import PanopticModel, count_parameters
+from lift3d.train.normalization import SceneNormalization, derive_grid_resolution, infer_normalization
+from lift3d.train.run import RunFolder
+from lift3d.utils.device import resolve_device, set_threads
+from lift3d.utils.progress import progress_bar
+
+
+# ------------------------------------------------------------------------------------------ configuration
+def resolve_config(scene: Scene, preset: str, overrides: dict | None) -> tuple[Config, SceneNormalization]:
+    """Preset + indoor/outdoor defaults + overrides, then sizes from the scene (except U and V, which need
+    the labels: see :func:`resolve_label_sizes`)."""
+    norm, why_bounded = infer_normalization(scene)
+    kind = "indoor" if norm.bounded else "outdoor"
+    cfg = load_config(preset, kind, overrides)
+    if cfg.field.contraction == "auto":
+        cfg.field.contraction = "none" if norm.bounded else "linf"
+    elif (cfg.field.contraction == "none") != norm.bounded:
+        why_bounded += f"; overridden by field.contraction={cfg.field.contraction}"
+        norm.bounded = cfg.field.contraction == "none"
+    notes = {"bounded": norm.bounded, "why_bounded": why_bounded, "kind_defaults": kind}
+    if cfg.field.grid_max_resolution <= 0:
+        res, why = derive_grid_resolution(scene, norm, cfg.field.grid_resolution_cap, cfg.field.grid_min_resolution)
+        cfg.field.grid_max_resolution = res
+        notes["why_grid_resolution"] = why
+    cfg.scene = {"data": str(scene.root.resolve()), "name": scene.name, **notes,
+                 "normalization": norm.to_json()}
+    return cfg, norm
+
+
+def resolve_label_sizes(cfg: Config, data: TrainingData) -> None:
+    """U from the categories the labels use (plus void); V from the pseudo-labels with headroom; no
+    instance head without thing classes."""
+    labels = data.labels
+    if cfg.field.num_semantic_classes <= 0:
+        cfg.field.num_semantic_classes = labels.num_channels
+    elif cfg.field.num_semantic_classes != labels.num_channels:
+        raise InputError("--field.num-semantic-classes",
+                         f"the labels use {labels.num_channels - 1} categories (+ void = {labels.num_channels})")
+    if not labels.thing_ids:
+        cfg.field.num_instance_channels = 0
+        why_v = "no thing classes in the labels: no instance head"
+    elif cfg.field.num_instance_channels <= 0:
+        want = max(16, cfg.data.instance_headroom * data.max_instances_per_frame)
+        v = int(min(cfg.data.max_instance_channels, math.ceil(want / 8) * 8))
+        cfg.field.num_instance_channels = v
+        why_v = f"{cfg.data.instance_headroom} x {data.max_instances_per_frame} thing segments in the busiest frame"
+    else:
+        why_v = "set by the user"
+    cfg.scene.update(labels=labels.to_dict(), why_instance_channels=why_v,
+                     max_instances_per_frame=int(data.max_instances_per_frame))
+
+
+# ------------------------------------------------------------------------------------------ loading runs
+@dataclass
+class LoadedRun:
+    """A trained run ready to render: model, configuration, normalisation, labels and its scene."""
+
+    run: RunFolder
+    cfg: Config
+    model: PanopticModel
+    norm: SceneNormalization
+    labels: LabelSpace
+    step: int
+    device: torch.device
+
+    def scene(self, data: str | Path | None = None) -> Scene:
+        path = Path(data) if data else Path(self.cfg.scene.get("data", ""))
+        if not path.is_dir():
+            raise InputError(path, "the run's scene folder is gone (pass --data to point at it)")
+        return load_scene(path)
+
+    def rays(self, scene: Scene) -> RayGenerator:
+        return RayGenerator(scene.cameras, self.norm.c2w_normalized(scene.cameras.c2w), self.device)
+
+
+def model_from_state(state: dict, device: torch.device) -> tuple[Config, PanopticModel, SceneNormalization, LabelSpace]:
+    cfg = config_from_dict(state["config"], "checkpoint")
+    labels = LabelSpace.from_dict(state["labels"])
+    norm = SceneNormalization.from_json(state["normalization"])
+    model = PanopticModel(cfg, labels).to(device)
+    model.load_state_dict(state["model"])
+    model.eval()
+    return cfg, model, norm, labels
+
+
+def load_run(path: str | Path, device: str = "auto") -> LoadedRun:
+    """Load the newest readable checkpoint of a run folder."""
+    run = RunFolder.open(path)
+    dev = resolve_device(device)
+    state = run.load_latest_checkpoint(map_location=dev)
+    try:
+        cfg, model, norm, labels = model_from_state(state, dev)
+    except (KeyError, RuntimeError) as exc:
+        raise InputError(state.get("_path", run.checkpoint_dir), f"checkpoint does not match this lift3d ({exc})") from exc
+    return LoadedRun(run, cfg, model, norm, labels, int(state["step"]), dev)
+
+
+# ------------------------------------------------------------------------------------------ training
+@dataclass
+class TrainResult:
+    run: RunFolder
+    steps: int
+    seconds: float
+    peak_rss_mb: float
+    summary: dict[str, Any] = field(default_factory=dict)
+
+
+def _lr_factor(step: int, cfg: Config) -> float:
+    warm = min(1.0, (step + 1) / max(1, cfg.optim.warmup_steps))
+    return warm * cfg.optim.lr_final_factor ** (min(step, cfg.optim.steps) / max(1, cfg.optim.steps))
+
+
+def _peak_rss_mb() -> float:
+    try:
+        import resource
+
+        return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0  # KiB on Linux
+    except ImportError:  # Windows
+        import psutil
+
+        return psutil.Process().memory_info().peak_wset / 2**20  # type: ignore[attr-defined]
+
+
+class Trainer:
+    """Owns the model, optimiser, data and run folder of one training run."""
+
+    def __init__(self, scene: Scene, cfg: Config, norm: SceneNormalization, run: RunFolder,
+                 device: torch.device, progress: bool = True, labels: LabelSpace | None = None):
+        self.scene, self.cfg, self.norm, self.run, self.device = scene, cfg, norm, run, device
+        self.progress = progress
+        self.rays = RayGenerator(scene.cameras, norm.c2w_normalized(scene.cameras.c2w), device)
+        self.data = TrainingData(scene, scene.split("train"), self.rays, labels, progress=progress)
+        resolve_label_sizes(cfg, self.data)
+        self.model = PanopticModel(cfg, self.data.labels).to(device)
+        self.model.train()
+        fused = device.type in ("cpu", "cuda")
+        self.optimizer = torch.optim.Adam(
+            [
+                {"params": self.model.grid_parameters(), "lr": cfg.optim.lr_grid, "base_lr": cfg.optim.lr_grid, "eps": 1e-15},
+                {"params": self.model.decoder_parameters(), "lr": cfg.optim.lr_mlp, "base_lr": cfg.optim.lr_mlp, "eps": 1e-15},
+            ],
+            betas=(0.9, 0.99),
+            fused=fused,
+        )
+        self.generator = torch.Generator().manual_seed(cfg.trainer.seed)
+        self.step = 0
+        self.perceptual = None
+        if cfg.losses.feature > 0 and cfg.data.patch_size > 0:
+            from lift3d.train.perceptual import build_perceptual_prior
+
+            self.perceptual = build_perceptual_prior(cfg.trainer.feature_weights).to(device)
+        self.eval_frames = self._pick_eval_frames()
+
+    def _pick_eval_frames(self) -> list[int]:
+        val = self.scene.split("val")
+        k = min(self.cfg.trainer.eval_images, len(val))
+        return [int(val[i]) for i in np.linspace(0, len(val) - 1, k).round().astype(int)] if k else []
+
+    # ---------------------------------------------------------------- checkpoints
+    def state(self) -> dict[str, Any]:
+        return {
+            "model": self.model.state_dict(),
+            "optimizer": self.optimizer.state_dict(),
+            "step": self.step,
+            "config": self.cfg.to_dict(),
+            "labels": self.data.labels.to_dict(),
+            "normalization": self.norm.to_json(),
+            "rng": {"torch": self.generator.get_state(), "cpu": torch.get_rng_state()},
+            "lift3d_version": __version__,
+        }
+
+    def save_checkpoint(self) -> Path:
+        for p in self.model.parameters():
+            if not bool(torch.isfinite(p).all()):
+                raise TrainingDiverged(
+                    f"parameters became non-finite at step {self.step}; not overwriting the last good checkpoint "
+                    f"in {self.run.checkpoint_dir} (lower --optim.lr-grid / --optim.lr-mlp and --resume)"
+                )
+        return self.run.save_checkpoint(self.step, self.state(), keep=self.cfg.trainer.keep_checkpoints)
+
+    def restore(self, state: dict[str, Any]) -> None:
+        self.model.load_state_dict(state["model"])
+        self.optimizer.load_state_dict(state["optimizer"])
+        self.step = int(state["step"])
+        if "rng" in state:
+            self.generator.set_state(state["rng"]["torch"])
+            torch.set_rng_state(state["rng"]["cpu"])
+
+    # ---------------------------------------------------------------- one step
+    def losses(self, batch) -> dict[str, torch.Tensor]:
+        cfg = self.cfg.losses
+        with_labels = cfg.semantic > 0 or cfg.instance > 0 or cfg.segment > 0
+        out = self.model.render(batch.origins, batch.dirs, training=True, with_labels=with_labels, generator=self.generator)
+        conf = batch.confidence if cfg.use_confidence else None
+        terms: dict[str, torch.Tensor] = {"color": charbonnier_loss(out.rgb, batch.rgb, cfg.charbonnier_eps)}
+        if len(self.model.proposals):
+            terms["distill"] = out.distill
+        if cfg.semantic > 0:
+            terms["semantic"] = semantic_loss(out.semantic, batch.semantic, conf)
+        if cfg.instance > 0 and out.instance is not None:
+            terms["instance"] = instance_loss(out.instance, batch.instance, batch.image, conf)
+        if cfg.segment > 0 and self.step >= cfg.segment_start * self.cfg.optim.steps:
+            groups = segment_groups(batch.image, batch.segment, cfg.segment_min_rays)
+            terms["segment"] = segment_consistency_loss(out.semantic, groups, conf)
+        if self.perceptual is not None and batch.n_patch_rays > 0:
+            ps = batch.patch_size
+            pred = out.rgb[: batch.n_patch_rays].view(-1, ps, ps, 3).permute(0, 3, 1, 2)
+            obs = batch.rgb[: batch.n_patch_rays].view(-1, ps, ps, 3).permute(0, 3, 1, 2)
+            with torch.no_grad():
+                f_obs = self.perceptual(obs)
+            terms["feature"] = feature_loss(self.perceptual(pred), f_obs)
+        if cfg.regularization > 0:
+            grids_ = self.model.field.grids
+            if grids_:
+                terms["tv"] = torch.stack([g.total_variation(cfg.tv_samples, self.generator) for g in grids_]).mean()
+            terms["disparity"] = disparity_loss(out.weights, out.t_mid)
+        weights = {"color": cfg.color, "distill": cfg.distill, "semantic": cfg.semantic, "instance": cfg.instance,
+                   "segment": cfg.segment, "feature": cfg.feature, "tv": cfg.regularization,
+                   "disparity": cfg.regularization}
+        terms["total"] = sum(weights[k] * v for k, v in terms.items())
+        with torch.no_grad():
+            mse = ((out.rgb - batch.rgb) ** 2).mean()
+            terms["psnr"] = -10.0 * torch.log10(mse.clamp_min(1e-10))
+        return terms
+
+    def train_step(self) -> dict[str, float] | None:
+        """One optimisation step; None when the loss was not finite (the step is skipped)."""
+        d = self.cfg.data
+        batch = self.data.sample(d.images_per_batch, d.rays_per_image, d.patch_size, self.generator)
+        factor = _lr_factor(self.step, self.cfg)
+        for group in self.optimizer.param_groups:
+            group["lr"] = group["base_lr"] * factor
+        # Keep gradient buffers allocated: the grid lookups add into them in place (see field.grids).
+        self.optimizer.zero_grad(set_to_none=False)
+        terms = self.losses(batch)
+        total = terms["total"]
+        if not bool(torch.isfinite(total)):
+            self.optimizer.zero_grad(set_to_none=False)
+            return None
+        total.backward()
+        self.optimizer.step()
+        return {k: float(v.detach()) for k, v in terms.items()}
+
+    # ---------------------------------------------------------------- evaluation
+    def evaluate(self, frames: list[int] | None = None) -> dict[str, float]:
+        """Quick held-out metrics: PSNR, and mIoU / PQ^scene against GT (or the pseudo-labels without GT)."""
+        from lift3d.eval.metrics import miou, pq_scene, psnr
+
+        frames = self.eval_frames if frames is None else frames
+        if not frames:
+            return {}
+        preds, gts, psnrs = [], [], []
+        use_gt = self.scene.has_gt
+        for i in frames:
+            r = render_frame(self.model, self.rays, i, self.norm.scale)
+            psnrs.append(psnr(r.rgb, self.scene.image(i).astype(np.float32) / 255.0))
+            lab = self.scene.gt_labels(i) if use_gt else self.scene.pseudo_labels(i)
+            preds.append((r.semantic, r.instance))
+            gts.append((lab.semantic, lab.instance))
+        ps, pi = np.stack([p[0] for p in preds]), np.stack([p[1] for p in preds])
+        gs, gi = np.stack([g[0] for g in gts]), np.stack([g[1] for g in gts])
+        pq = pq_scene(ps, pi, gs, gi, self.scene.thing_ids, self.scene.stuff_ids)
+        return {"psnr": float(np.mean(psnrs)), "miou": float(miou(ps, gs)["miou"]), "pq_scene": float(pq["pq"]),
+                "against": "gt" if use_gt else "pseudo_labels"}
+
+    # ---------------------------------------------------------------- the loop
+    def fit(self) -> TrainResult:
+        cfg = self.cfg
+        start = time.perf_counter()
+        bad = 0
+        last: dict[str, float] = {}
+        summary: dict[str, Any] = {}
+        steps_total = cfg.optim.steps
+        bar = progress_bar(total=steps_total, desc="train", disable=not self.progress, unit="step")
+        bar.update(self.step)
+        try:
+            while self.step < steps_total:
+                terms = self.train_step()
+                if terms is None:
+                    bad += 1
+                    if bad >= cfg.optim.max_bad_steps:
+                        raise TrainingDiverged(
+                            f"the loss was not finite for {bad} consecutive steps at step {self.step}; the last good "
+                            f"checkpoint in {self.run.checkpoint_dir} is intact (lower the learning rates and --resume)"
+                        )
+                    continue
+                bad = 0
+                last = terms
+                self.step += 1
+                bar.update(1)
+                if self.step % max(1, cfg.trainer.log_every) == 0 or self.step == steps_total:
+                    bar.set_postfix(loss=f"{terms['total']:.4f}", psnr=f"{terms['psnr']:.2f}")
+                    self.run.append_log({"step": self.step, "time": time.perf_counter() - start, **terms})
+                if cfg.trainer.eval_every and self.step % cfg.trainer.eval_every == 0 and self.step < steps_total:
+                    ev = self.evaluate()
+                    self.run.append_log({"step": self.step, "time": time.perf_counter() - start, "eval": ev})
+                if cfg.trainer.checkpoint_every and self.step % cfg.trainer.checkpoint_every == 0:
+                    self.save_checkpoint()
+                if cfg.trainer.time_budget and time.perf_counter() - start > cfg.trainer.time_budget:
+                    summary["stopped_by_time_budget"] = True
+                    break
+        finally:
+            bar.close()
+        seconds = time.perf_counter() - start
+        self.save_checkpoint()
+        ev = self.evaluate()
+        self.run.append_log({"step": self.step, "time": seconds, "eval": ev, "final": True})
+        summary.update(steps=self.step, seconds=seconds, last=last, eval=ev)
+        return TrainResult(self.run, self.step, seconds, _peak_rss_mb(), summary)
+
+
+def seed_everything(seed: int) -> None:
+    random.seed(seed)
+    np.random.seed(seed % 2**32)
+    torch.manual_seed(seed)
+
+
+def train(
+    data: str | Path | None = None,
+    preset: str = "fast",
+    output_dir: str | Path = "outputs",
+    overrides: dict | None = None,
+    resume: str | Path | None = None,
+    progress: bool = True,
+    print_summary: bool = True,
+) -> TrainResult:
+    """Train a panoptic radiance field on a scene folder (or resume a run).
+
+    Parameters
+    ----------
+    data : str or Path
+        Scene folder (not needed with ``resume``).
+    preset : str
+        ``fast``, ``balanced``, ``quality`` or a YAML file.
+    output_dir : str or Path
+        Root of the run folders.
+    overrides : dict, optional
+        Nested settings, e.g. ``{"optim": {"steps": 500}}``.
+    resume : str or Path, optional
+        A run folder to continue from its newest checkpoint (its config.yml wins over preset/overrides,
+        except ``optim.steps`` and ``trainer`` settings given in ``overrides``).
+    """
+    if resume is not None:
+        run = RunFolder.open(resume)
+        cfg = config_from_dict(load_yaml(run.config_path), str(run.config_path))
+        if overrides:
+            from lift3d.train.config import update_dataclass
+
+            allowed = {k: v for k, v in overrides.items() if k in ("trainer",)}
+            if "optim" in overrides and "steps" in overrides["optim"]:
+                allowed["optim"] = {"steps": overrides["optim"]["steps"]}
+            cfg = update_dataclass(cfg, allowed, "command line")
+        scene = load_scene(data or cfg.scene["data"])
+        norm = SceneNormalization.from_json(cfg.scene["normalization"])
+    else:
+        if data is None:
+            raise InputError("--data", "a scene folder is required (or --resume RUN)")
+        scene = load_scene(data)
+        cfg, norm = resolve_config(scene, preset, overrides)
+        run = RunFolder.create(output_dir, scene.name, cfg.preset)
+    set_threads(cfg.trainer.threads or None)
+    seed_everything(cfg.trainer.seed)
+    device = resolve_device(cfg.trainer.device)
+    grids.ACCUMULATE_GRAD_IN_PLACE = True
+    labels = LabelSpace.from_dict(cfg.scene["labels"]) if resume is not None and "labels" in cfg.scene else None
+    trainer = Trainer(scene, cfg, norm, run, device, progress=progress, labels=labels)
+    if resume is not None:
+        trainer.restore(run.load_latest_checkpoint(map_location=device))
+    else:
+        save_config(cfg, run.config_path)
+        norm.save(run.transform_path)
+    result = trainer.fit()
+    save_config(cfg, run.config_path)
+    result.summary["parameters"] = count_parameters(trainer.model)
+    if print_summary:
+        print(format_summary(result, cfg))
+    return result
+
+
+def format_summary(result: TrainResult, cfg: Config) -> str:
+    ev = result.summary.get("eval", {})
+    lines = [
+        "",
+        f"lift3d train: {result.steps} steps in {result.seconds:.0f} s "
+        f"({result.steps / max(result.seconds, 1e-9):.1f} steps/s), peak memory {result.peak_rss_mb:.0f} MB",
+        f"  run folder     {result.run.path}",
+        f"  model          {cfg.field.kind}, grid {cfg.field.grid_max_resolution}^3, "
+        f"U={cfg.field.num_semantic_classes}, V={cfg.field.num_instance_channels}, "
+        f"{'bounded' if cfg.field.contraction == 'none' else 'unbounded (' + cfg.field.contraction + ')'}",
+    ]
+    if ev:
+        lines.append(f"  held-out views PSNR {ev['psnr']:.2f} dB, mIoU {ev['miou']:.3f}, PQ^scene {ev['pq_scene']:.3f} "
+                     f"(against {ev['against'].replace('_', '-')}; run `lift3d eval --run {result.run.path}` for all metrics)")
+    return "\n".join(lines)
