@@ -71,7 +71,10 @@ def linear_assign_instances(probs: Tensor, ids: Tensor, image_ids: Tensor | None
     for img in images.tolist():
         sel = (image_ids == img).nonzero().squeeze(1)
         cost, unique_ids = instance_cost_matrix(probs[sel], ids[sel])
-        rows, cols = linear_sum_assignment(cost.double().cpu().numpy())
+        # A diverging field can produce NaN probabilities; the trainer skips such steps, the matching
+        # must not crash before it gets the chance.
+        cost = torch.nan_to_num(cost.double(), nan=0.0, posinf=0.0, neginf=-1.0)
+        rows, cols = linear_sum_assignment(cost.cpu().numpy())
         lut = np.full(len(unique_ids), -1, dtype=np.int64)
         lut[rows] = cols
         _, inv = torch.unique(ids[sel], return_inverse=True)

@@ -1,0 +1,146 @@
+"""Every loss on a hand-computed case, and the instance assignment."""
+
+import math
+
+import pytest
+import torch
+
+from lift3d.train.assignment import instance_cost_matrix, linear_assign_instances
+from lift3d.train.losses import (
+    charbonnier_loss,
+    disparity_loss,
+    feature_loss,
+    instance_loss,
+    segment_consistency_loss,
+    segment_groups,
+    semantic_loss,
+    weighted_cross_entropy,
+)
+
+
+def test_charbonnier_hand_case():
+    pred = torch.tensor([[0.0, 0.0, 0.0], [1.0, 1.0, 1.0]])
+    target = torch.tensor([[0.3, 0.3, 0.3], [1.0, 1.0, 1.0]])
+    eps = 1e-4
+    expected = (3 * math.sqrt(0.09 + eps**2) + 3 * eps) / 6
+    assert abs(float(charbonnier_loss(pred, target, eps)) - expected) < 1e-7
+
+
+def test_weighted_cross_entropy_hand_case():
+    logits = torch.tensor([[0.0, math.log(3.0)], [0.0, 0.0], [5.0, 1.0]])
+    target = torch.tensor([1, 0, -1])  # the last ray is ignored
+    weight = torch.tensor([0.5, 1.0, 1.0])
+    # p(1 | ray 0) = 3/4, p(0 | ray 1) = 1/2
+    expected = (0.5 * -math.log(0.75) + 1.0 * -math.log(0.5)) / 2
+    assert abs(float(weighted_cross_entropy(logits, target, weight)) - expected) < 1e-6
+
+
+def test_confidence_zero_and_probability_zero_stay_finite():
+    logits = torch.tensor([[-1e4, 1e4], [0.0, 0.0]], requires_grad=True)
+    loss = weighted_cross_entropy(logits, torch.tensor([0, 1]), torch.tensor([0.0, 0.0]))
+    loss.backward()
+    assert float(loss) == 0.0 and torch.isfinite(logits.grad).all()
+    loss2 = weighted_cross_entropy(logits, torch.tensor([0, 1]), torch.tensor([1.0, 1.0]))
+    assert math.isfinite(float(loss2))  # log(p≈0) is taken in log-softmax space: large but finite
+
+
+def test_semantic_loss_ignores_void_and_all_void_batches():
+    logits = torch.tensor([[0.0, 2.0, 0.0], [0.0, 0.0, 2.0]])
+    only_first = semantic_loss(logits, torch.tensor([1, 0]), None)
+    assert abs(float(only_first) - float(weighted_cross_entropy(logits[:1], torch.tensor([1])))) < 1e-7
+    assert float(semantic_loss(logits, torch.tensor([0, 0]), None)) == 0.0
+
+
+def test_linear_assignment_picks_the_best_channels_per_image():
+    probs = torch.tensor([
+        [0.1, 0.8, 0.1], [0.2, 0.7, 0.1],  # image 0, 2D id 40 → channel 1
+        [0.6, 0.3, 0.1],                     # image 0, 2D id 7  → channel 0
+        [0.1, 0.8, 0.1],                     # image 1, 2D id 40 (a different object) → channel 1
+    ])
+    ids = torch.tensor([40, 40, 7, 40])
+    images = torch.tensor([0, 0, 0, 1])
+    assert linear_assign_instances(probs, ids, images).tolist() == [1, 1, 0, 1]
+
+
+def test_linear_assignment_more_2d_ids_than_channels():
+    probs = torch.tensor([[0.9, 0.1], [0.8, 0.2], [0.3, 0.7]])
+    target = linear_assign_instances(probs, torch.tensor([1, 2, 3]))
+    # Two channels for three ids: one id stays unmatched (-1); the matched ones use distinct channels.
+    assert sorted(target.tolist()) == [-1, 0, 1]
+    assert target[0] == 0 and target[2] == 1
+
+
+def test_cost_matrix_is_negative_mean_probability():
+    probs = torch.tensor([[0.2, 0.8], [0.4, 0.6], [1.0, 0.0]])
+    cost, ids = instance_cost_matrix(probs, torch.tensor([5, 5, 9]))
+    assert ids.tolist() == [5, 9]
+    assert torch.allclose(cost, torch.tensor([[-0.3, -0.7], [-1.0, 0.0]]))
+
+
+def test_instance_loss_is_permutation_invariant_over_2d_ids():
+    logits = torch.tensor([[4.0, 0.0, 0.0], [0.0, 4.0, 0.0], [0.0, 0.0, 0.0]])
+    image = torch.tensor([0, 0, 0])
+    a = instance_loss(logits, torch.tensor([3, 8, 0]), image, None)
+    b = instance_loss(logits, torch.tensor([8, 3, 0]), image, None)  # renamed 2D ids: same loss
+    assert abs(float(a) - float(b)) < 1e-7
+    # Hand value: each thing ray matches its own peaked channel: -log softmax([4,0,0])[0].
+    expected = -math.log(math.exp(4) / (math.exp(4) + 2))
+    assert abs(float(a) - expected) < 1e-6
+
+
+def test_instance_loss_without_thing_pixels_is_zero_with_gradient_graph():
+    logits = torch.zeros(3, 4, requires_grad=True)
+    loss = instance_loss(logits, torch.zeros(3, dtype=torch.long), torch.zeros(3, dtype=torch.long), None)
+    loss.backward()
+    assert float(loss) == 0.0
+
+
+def test_segment_groups_and_consistency_target_is_dominant_predicted_class():
+    image = torch.tensor([0, 0, 0, 0, 1, 1, 0])
+    segment = torch.tensor([5, 5, 5, 5, 5, 5, 0])
+    groups = segment_groups(image, segment, min_rays=3)
+    # Image 0 / segment 5 has 4 rays (kept); image 1 / segment 5 has 2 (too small); void is never grouped.
+    assert groups.tolist()[:4] == [0, 0, 0, 0] and groups.tolist()[4:] == [-1, -1, -1]
+    logits = torch.tensor([[0.0, 3.0, 0.0], [0.0, 3.0, 0.0], [0.0, 3.0, 0.0], [0.0, 0.0, 2.0],
+                           [0.0, 0.0, 0.0], [0.0, 0.0, 0.0], [0.0, 0.0, 0.0]])
+    loss = segment_consistency_loss(logits, groups, None)
+    # Dominant class of the group is channel 1: CE of every group ray to channel 1.
+    expected = float(weighted_cross_entropy(logits[:4], torch.tensor([1, 1, 1, 1])))
+    assert abs(float(loss) - expected) < 1e-6
+
+
+def test_segment_loss_single_ray_segments_give_zero():
+    groups = segment_groups(torch.tensor([0, 1, 2]), torch.tensor([1, 1, 1]), min_rays=2)
+    assert (groups == -1).all()
+    assert float(segment_consistency_loss(torch.zeros(3, 4), groups, None)) == 0.0
+
+
+def test_disparity_loss_hand_case():
+    w = torch.tensor([[0.5, 0.5], [1.0, 0.0]])
+    t = torch.tensor([[1.0, 2.0], [4.0, 8.0]])
+    assert abs(float(disparity_loss(w, t)) - (0.75 + 0.25) / 2) < 1e-7
+
+
+def test_feature_loss_hand_case():
+    a = [torch.zeros(1, 2, 2, 2)]
+    b = [torch.zeros(1, 2, 2, 2)]
+    b[0][:, 0] = 3.0
+    b[0][:, 1] = 4.0
+    assert abs(float(feature_loss(a, b)) - 5.0) < 1e-5
+
+
+@pytest.mark.slow
+def test_perceptual_prior_loads_offline_and_is_frozen():
+    from lift3d.train.perceptual import build_perceptual_prior
+
+    net = build_perceptual_prior()
+    x = torch.rand(2, 3, 16, 16, requires_grad=True)
+    feats = net(x)
+    assert [f.shape[1] for f in feats] == [16, 24]
+    assert all(not p.requires_grad for p in net.parameters())
+    # Unit-normalised features: L_feat of a patch with itself is 0, against another patch in (0, 2].
+    assert float(feature_loss(feats, net(x.detach()))) < 1e-5
+    other = feature_loss(feats, net(torch.rand(2, 3, 16, 16)))
+    assert 0 < float(other) <= 2.0
+    other.backward()
+    assert x.grad is not None and torch.isfinite(x.grad).all()

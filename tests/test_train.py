@@ -1,0 +1,113 @@
+"""End to end: a tiny synthetic scene trains (loss falls, metrics rise), checkpoints, resumes, reloads."""
+
+import json
+
+import numpy as np
+import pytest
+import torch
+import yaml
+
+from lift3d.render.images import render_frame
+from lift3d.synth import make_scene
+from lift3d.train.trainer import load_run, train
+
+# Small and quick, but every code path of the real presets (proposals, patches, all losses).
+TINY = {
+    "field": {"grid_resolution_cap": 32, "grid_min_resolution": 16, "head_hidden_dim": 32},
+    "sampling": {"proposal_resolutions": [24], "proposal_samples": [32], "num_samples": 16},
+    "data": {"images_per_batch": 2, "rays_per_image": 96, "patch_size": 8},
+    "optim": {"steps": 120, "warmup_steps": 10},
+    "trainer": {"eval_every": 60, "eval_images": 2, "checkpoint_every": 60, "log_every": 10},
+}
+
+
+@pytest.fixture(scope="module")
+def tiny_indoor(tmp_path_factory):
+    root = tmp_path_factory.mktemp("scenes") / "room"
+    make_scene(root, kind="indoor", seed=3, noise="moderate", n_views=10, width=40, height=40, progress=False)
+    return root
+
+
+@pytest.fixture(scope="module")
+def trained(tiny_indoor, tmp_path_factory):
+    out = tmp_path_factory.mktemp("runs")
+    return train(tiny_indoor, preset="fast", output_dir=out, overrides=TINY, progress=False, print_summary=False)
+
+
+def test_run_folder_layout_and_derived_config(trained, tiny_indoor):
+    run = trained.run.path
+    assert run.parent.name == "fast" and run.parent.parent.name == tiny_indoor.name
+    for name in ("config.yml", "transform.json", "log.jsonl"):
+        assert (run / name).is_file()
+    cfg = yaml.safe_load((run / "config.yml").read_text())
+    assert cfg["field"]["contraction"] == "none" and cfg["scene"]["bounded"] is True
+    assert cfg["field"]["num_semantic_classes"] == len(cfg["scene"]["labels"]["semantic_ids"]) + 1
+    assert cfg["field"]["num_instance_channels"] >= 16 and cfg["field"]["num_instance_channels"] % 8 == 0
+    assert 16 <= cfg["field"]["grid_max_resolution"] <= 32
+    assert "why_grid_resolution" in cfg["scene"] and "why_bounded" in cfg["scene"]
+    ckpts = sorted((run / "checkpoints").glob("step-*.pt"))
+    assert ckpts[-1].name == "step-000000120.pt"
+    transform = json.loads((run / "transform.json").read_text())
+    assert np.asarray(transform["transform"]).shape == (4, 4)
+
+
+def test_loss_falls_and_metrics_rise(trained):
+    log = trained.run.read_log()
+    steps = [r for r in log if "total" in r]
+    first, last = steps[0], steps[-1]
+    assert last["color"] < 0.7 * first["color"]
+    assert last["psnr"] > first["psnr"] + 2.0
+    assert last["semantic"] < first["semantic"]
+    evals = [r["eval"] for r in log if "eval" in r]
+    assert len(evals) >= 2 and evals[-1]["psnr"] > 14.0
+    assert all(np.isfinite(r["total"]) for r in steps)
+
+
+def test_resume_continues_from_the_last_checkpoint(trained):
+    result = train(resume=trained.run.path, overrides={"optim": {"steps": 130}}, progress=False, print_summary=False)
+    assert result.steps == 130
+    assert (trained.run.path / "checkpoints" / "step-000000130.pt").is_file()
+    log = trained.run.read_log()
+    assert max(r["step"] for r in log) == 130
+
+
+def test_loaded_run_renders_labels(trained):
+    loaded = load_run(trained.run.path, device="cpu")
+    scene = loaded.scene()
+    rays = loaded.rays(scene)
+    frame = render_frame(loaded.model, rays, int(scene.split("test")[0]), loaded.norm.scale)
+    assert frame.rgb.shape == (40, 40, 3) and np.isfinite(frame.rgb).all()
+    assert set(np.unique(frame.semantic)) <= set(loaded.labels.semantic_ids)
+    things = np.isin(frame.semantic, loaded.labels.thing_ids)
+    assert (frame.instance[~things] == 0).all()
+    assert frame.depth.max() > 0
+
+
+@pytest.mark.slow
+def test_outdoor_scene_trains_unbounded_without_nan(tmp_path):
+    root = tmp_path / "street"
+    make_scene(root, kind="outdoor", seed=1, noise="moderate", n_views=8, width=48, height=32, progress=False)
+    overrides = json.loads(json.dumps(TINY))
+    overrides["optim"]["steps"] = 40
+    overrides["trainer"].update(eval_every=0, checkpoint_every=0)
+    result = train(root, preset="fast", output_dir=tmp_path / "runs", overrides=overrides, progress=False,
+                   print_summary=False)
+    cfg = yaml.safe_load((result.run.path / "config.yml").read_text())
+    assert cfg["field"]["contraction"] == "linf" and cfg["scene"]["bounded"] is False
+    assert all(np.isfinite(r["total"]) for r in result.run.read_log() if "total" in r)
+    assert np.isfinite(result.summary["eval"]["psnr"])
+
+
+def test_exploding_learning_rate_is_detected_and_checkpoint_kept(tiny_indoor, tmp_path):
+    from lift3d.errors import TrainingDiverged
+
+    overrides = json.loads(json.dumps(TINY))
+    overrides["optim"].update(steps=60, lr_grid=1e12, lr_mlp=1e12, max_bad_steps=3, warmup_steps=1)
+    overrides["trainer"].update(eval_every=0, checkpoint_every=1000)
+    with pytest.raises(TrainingDiverged, match="not finite|non-finite"):
+        train(tiny_indoor, preset="fast", output_dir=tmp_path, overrides=overrides, progress=False,
+              print_summary=False)
+    # Nothing non-finite was written as a checkpoint.
+    for ckpt in tmp_path.rglob("step-*.pt"):
+        state = torch.load(ckpt, weights_only=False)
+        assert all(torch.isfinite(v).all() for v in state["model"].values() if v.is_floating_point())
