@@ -288,9 +288,10 @@ class RenderedOutputWriter:
         needs_labels = out & {"semantic", "semantic_vis", "instance", "instance_vis", "panoptic", "confidence"}
         if needs_labels and frame.semantic is None:
             raise InputError("--outputs", f"{', '.join(sorted(needs_labels))} need labels, but the model rendered none")
-        sem = None if frame.semantic is None else np.asarray(frame.semantic, np.int64)
-        inst = (np.zeros_like(sem) if frame.instance is None else np.asarray(frame.instance, np.int64)) if sem is not None else None
-        if inst is not None:
+        sem = inst = None
+        if frame.semantic is not None:
+            sem = np.asarray(frame.semantic, np.int64)
+            inst = np.zeros_like(sem) if frame.instance is None else np.asarray(frame.instance, np.int64)
             inst = np.where(sem > 0, inst, 0)  # instance 0 on void, whatever the head said
         if "semantic" in out:
             write_label_map(self.path("semantic", stem), sem)

@@ -1,0 +1,596 @@
+"""``lift3d eval``: every metric of DESIGN.md section 4 for a trained run, beside the pseudo-label baseline.
+
+The pipeline is split so that each stage can be used (and tested) on its own:
+
+1. :func:`render_split` renders the frames of a split (rgb, z-depth, semantic, instance);
+2. :func:`gt_labels` / :func:`pseudo_labels` read the scene's GT and 2D pseudo-labels of those frames;
+3. :func:`compute_2d_metrics` scores any prediction arrays against GT arrays (mIoU, PQ^scene with
+   ``min_area`` 0.005 and, as ``*_strict``, 0.0; things / stuff split) -- the lifted prediction and the
+   pseudo-labels go through the very same function;
+4. :func:`metrics_from_arrays` assembles the 2D part of ``metrics.json`` (PSNR, depth errors, 2D labels,
+   the ``pseudo_labels`` block);
+5. :func:`points3d_block` scores a labelled point cloud of the run against ``gt/points.ply``;
+6. :func:`time_render` measures the milliseconds to render 2048 rays;
+7. :func:`evaluate_run` does all of it and writes ``metrics.json`` (NaN / inf written as ``null``).
+
+The metric functions themselves live in :mod:`lift3d.eval.metrics` and :mod:`lift3d.eval.points3d`.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import statistics
+import tempfile
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Iterable, NamedTuple, Sequence
+
+import numpy as np
+
+from lift3d import __version__
+from lift3d.data.scene import Scene
+from lift3d.errors import InputError
+from lift3d.eval.metrics import depth_error, miou, pq_scene, psnr_per_image
+from lift3d.eval.points3d import points3d
+from lift3d.utils.atomic import write_text_atomic
+from lift3d.utils.progress import progress_bar
+
+__all__ = [
+    "MIN_AREA",
+    "MIN_AREA_STRICT",
+    "LabelStack",
+    "RenderedSplit",
+    "compute_2d_metrics",
+    "render_split",
+    "gt_labels",
+    "pseudo_labels",
+    "metrics_from_arrays",
+    "points3d_block",
+    "points_from_rendered_depth",
+    "time_render",
+    "evaluate_run",
+    "json_safe",
+    "write_metrics",
+    "check_writable",
+]
+
+#: Class-area filter of the published PQ^scene / mIoU numbers, and the strict variant (no filter).
+MIN_AREA = 0.005
+MIN_AREA_STRICT = 0.0
+#: Keys of a 2D metrics block (the lifted result and the ``pseudo_labels`` baseline share them).
+_PQ_KEYS = ("pq", "sq", "rq")
+
+
+class LabelStack(NamedTuple):
+    """Panoptic labels of a set of frames: semantic (category ids, 0 = void) and instance ids.
+
+    Each array is flat (the pixels of all frames concatenated, so frames may differ in size) or F×H×W.
+    """
+
+    semantic: np.ndarray
+    instance: np.ndarray
+
+
+@dataclass
+class RenderedSplit:
+    """Rendered frames, one array per frame (frames may differ in size)."""
+
+    frames: list[int]
+    rgb: list[np.ndarray]  # [H, W, 3] float32 in [0, 1]
+    depth: list[np.ndarray]  # [H, W] float32 z-depth, world units (0 = nothing hit)
+    semantic: list[np.ndarray]  # [H, W] category ids
+    instance: list[np.ndarray]  # [H, W] instance ids, 0 on stuff
+    confidence: list[np.ndarray]  # [H, W] probability of the chosen class
+
+    def labels(self) -> LabelStack:
+        """The rendered labels as one flat :class:`LabelStack`."""
+        return _concat(self.semantic, self.instance)
+
+
+def _concat(sem: Sequence[np.ndarray], inst: Sequence[np.ndarray]) -> LabelStack:
+    # int32 halves the memory of int64 stacks; the metric functions accept any integer dtype.
+    return LabelStack(np.concatenate([np.asarray(s, np.int32).ravel() for s in sem]),
+                      np.concatenate([np.asarray(i, np.int32).ravel() for i in inst]))
+
+
+# --------------------------------------------------------------------------------------- 2D metrics
+def compute_2d_metrics(preds, gts, things: Iterable[int], stuff: Iterable[int]) -> dict:
+    """mIoU and PQ^scene (both ``min_area`` variants) of predicted labels against GT labels.
+
+    Parameters
+    ----------
+    preds, gts : LabelStack or (semantic, instance) pair
+        Integer arrays of the same shape (flat pixel lists or F×H×W stacks). GT instance ids must be
+        scene-consistent; predicted ones are taken as given (per-frame ids score as such).
+    things, stuff : iterable of int
+        Thing and stuff category ids (disjoint, no 0).
+
+    Returns
+    -------
+    dict
+        ``miou``, ``pq_scene``, ``sq_scene``, ``rq_scene`` at ``min_area`` 0.005 and the same keys with
+        suffix ``_strict`` at ``min_area`` 0; ``things`` and ``stuff`` blocks with ``pq sq rq n`` and
+        ``pq_strict sq_strict rq_strict n_strict``; ``n_classes`` / ``n_classes_strict`` (classes PQ
+        averaged over); ``per_class`` (str(category id) → ``pq sq rq tp fp fn iou``, ``min_area`` 0.005).
+        NaN where a mean is over no class (written as null in JSON).
+
+    Examples
+    --------
+    >>> sem = np.array([1, 1, 2, 2]); inst = np.array([0, 0, 5, 5])
+    >>> r = compute_2d_metrics((sem, inst), (sem, inst), things=[2], stuff=[1])
+    >>> r["pq_scene"], r["miou_strict"], r["things"]["pq"]
+    (1.0, 1.0, 1.0)
+    """
+    ps, pi = (np.asarray(a) for a in preds)
+    gs, gi = (np.asarray(a) for a in gts)
+    if ps.shape != gs.shape or pi.shape != gi.shape or ps.shape != pi.shape:
+        raise ValueError(f"compute_2d_metrics: prediction {ps.shape}/{pi.shape} and GT {gs.shape}/{gi.shape} differ")
+    things, stuff = sorted(int(c) for c in things), sorted(int(c) for c in stuff)
+    # One confusion-matrix size for both variants, covering every id either side uses.
+    n_cls = 1 + max(int(ps.max(initial=0)), int(gs.max(initial=0)))
+    out: dict[str, Any] = {"things": {}, "stuff": {}}
+    per_class: dict[str, dict] = {}
+    for min_area, suffix in ((MIN_AREA, ""), (MIN_AREA_STRICT, "_strict")):
+        mi = miou(ps, gs, min_area=min_area, num_classes=n_cls)
+        pq = pq_scene(ps, pi, gs, gi, things, stuff, min_area=min_area)
+        out["miou" + suffix] = mi["miou"]
+        for k in _PQ_KEYS:
+            out[f"{k}_scene{suffix}"] = pq[k]
+        out["n_classes" + suffix] = pq["n_classes"]
+        for part in ("things", "stuff"):
+            for k in _PQ_KEYS:
+                out[part][k + suffix] = pq[part][k]
+            out[part]["n" + suffix] = pq[part]["n"]
+        if not suffix:
+            iou = mi["per_class_iou"]
+            for cid, c in pq["per_class"].items():
+                per_class[str(cid)] = {k: c[k] for k in ("pq", "sq", "rq", "tp", "fp", "fn")}
+                per_class[str(cid)]["iou"] = float(iou[cid]) if cid < len(iou) else float("nan")
+    out["per_class"] = per_class
+    return out
+
+
+# --------------------------------------------------------------------------------------- inputs
+def render_split(loaded, scene: Scene, frames: Sequence[int], *, chunk_size: int | None = None,
+                 progress: bool = True) -> RenderedSplit:
+    """Render ``frames`` of ``scene`` at full resolution with the run's model.
+
+    Parameters
+    ----------
+    loaded : LoadedRun
+        From :func:`lift3d.train.trainer.load_run`.
+    scene : Scene
+        The run's scene (same world frame as at training).
+    frames : sequence of int
+        Frame indices.
+    chunk_size : int, optional
+        Rays per rendering chunk.
+    progress : bool
+        Show a progress bar.
+    """
+    from lift3d.render.images import render_frame
+
+    rays = loaded.rays(scene)
+    out = RenderedSplit(list(map(int, frames)), [], [], [], [], [])
+    for i in progress_bar(out.frames, desc="eval: render", disable=not progress, unit="frame"):
+        r = render_frame(loaded.model, rays, i, loaded.norm.scale, chunk_size=chunk_size)
+        h, w = r.rgb.shape[:2]
+        sem = r.semantic if r.semantic is not None else np.zeros((h, w), np.int64)
+        inst = r.instance if r.instance is not None else np.zeros((h, w), np.int64)
+        conf = r.confidence if r.confidence is not None else np.ones((h, w), np.float32)
+        out.rgb.append(r.rgb)
+        out.depth.append(r.depth)
+        out.semantic.append(sem)
+        out.instance.append(inst)
+        out.confidence.append(conf)
+    return out
+
+
+def gt_labels(scene: Scene, frames: Sequence[int]) -> LabelStack:
+    """GT panoptic labels (scene-consistent instance ids) of ``frames``, flat."""
+    labs = [scene.gt_labels(int(i)) for i in frames]
+    return _concat([x.semantic for x in labs], [x.instance for x in labs])
+
+
+def pseudo_labels(scene: Scene, frames: Sequence[int]) -> LabelStack:
+    """The scene's 2D pseudo-labels of ``frames``, flat, with their per-frame instance ids as given."""
+    labs = [scene.pseudo_labels(int(i)) for i in frames]
+    return _concat([x.semantic for x in labs], [x.instance for x in labs])
+
+
+def _has_gt_panoptic(scene: Scene, frames: Sequence[int]) -> bool:
+    return all(scene.frames[int(i)].gt_panoptic_path is not None for i in frames)
+
+
+def _has_gt_depth(scene: Scene, frames: Sequence[int]) -> bool:
+    return all(scene.frames[int(i)].depth_path is not None for i in frames)
+
+
+# --------------------------------------------------------------------------------------- assembling
+def _empty_2d_block() -> dict:
+    block: dict[str, Any] = {}
+    for suffix in ("", "_strict"):
+        block["miou" + suffix] = None
+        for k in _PQ_KEYS:
+            block[f"{k}_scene{suffix}"] = None
+    block["things"] = {k + s: None for s in ("", "_strict") for k in _PQ_KEYS}
+    block["stuff"] = {k + s: None for s in ("", "_strict") for k in _PQ_KEYS}
+    return block
+
+
+def metrics_from_arrays(scene: Scene, frames: Sequence[int], rendered: RenderedSplit, *,
+                        with_baseline: bool = True) -> dict:
+    """The 2D part of ``metrics.json`` from rendered frames: PSNR, depth errors, labels and baseline.
+
+    Parameters
+    ----------
+    scene : Scene
+        Source of GT images, GT labels, GT depth and pseudo-labels.
+    frames : sequence of int
+        The frames ``rendered`` holds, in the same order.
+    rendered : RenderedSplit
+        The prediction (any source: a render, or arrays built by hand).
+    with_baseline : bool
+        Also score the pseudo-labels (``pseudo_labels`` block).
+
+    Returns
+    -------
+    dict
+        ``psnr`` (mean of per-frame PSNRs, RGB in [0, 1]), the keys of :func:`compute_2d_metrics` (None
+        without GT panoptic), ``depth`` (``abs_rel rmse mae n_valid`` over all valid pixels of all frames,
+        or None without GT depth), ``pseudo_labels`` (2D keys of the pseudo-labels, or None), ``gt``
+        (which GT exists) and ``notes`` (human-readable remarks).
+    """
+    frames = [int(i) for i in frames]
+    if list(rendered.frames) != frames:
+        raise ValueError("metrics_from_arrays: rendered frames differ from frames")
+    notes: list[str] = []
+    psnrs = [float(psnr_per_image(r[None], (scene.image(i).astype(np.float32) / 255.0)[None])[0])
+             for i, r in zip(frames, rendered.rgb)]
+    out: dict[str, Any] = {"psnr": float(np.mean(psnrs)), "psnr_per_frame": psnrs}
+
+    has_pan = _has_gt_panoptic(scene, frames)
+    has_depth = _has_gt_depth(scene, frames)
+    out["gt"] = {"panoptic": has_pan, "depth": has_depth, "points": scene.gt_points_path is not None}
+    if has_pan:
+        gts = gt_labels(scene, frames)
+        things, stuff = scene.thing_ids, scene.stuff_ids
+        out.update(compute_2d_metrics(rendered.labels(), gts, things, stuff))
+        if with_baseline:
+            base = compute_2d_metrics(pseudo_labels(scene, frames), gts, things, stuff)
+            out["pseudo_labels"] = base
+        else:
+            out["pseudo_labels"] = None
+    else:
+        notes.append(f"no GT panoptic labels for the frames of this split in {scene.root}: "
+                     "only PSNR (and depth / 3D where their GT exists) is computed, no pseudo-label baseline")
+        out.update(_empty_2d_block())
+        out["pseudo_labels"] = None
+
+    if has_depth:
+        gd = np.concatenate([scene.depth(i).ravel() for i in frames])
+        pd = np.concatenate([np.asarray(d, np.float32).ravel() for d in rendered.depth])
+        out["depth"] = depth_error(pd, gd)
+    else:
+        out["depth"] = None
+    out["notes"] = notes
+    return out
+
+
+# --------------------------------------------------------------------------------------- 3D
+def points_from_rendered_depth(loaded, scene: Scene, num_points: int = 200_000, frames: Sequence[int] | None = None,
+                               min_opacity: float = 0.5, seed: int = 0, progress: bool = False):
+    """Labelled points from back-projected rendered depth (the stand-in when no export module exists).
+
+    Every frame of ``frames`` (default: all frames of the scene, training views included) is rendered at a
+    downscale that gives roughly ``num_points`` rays in total; pixels whose opacity is at least
+    ``min_opacity`` are lifted to the world along their ray by the rendered z-depth and keep the rendered
+    semantic / instance labels and confidence. A random subset of ``num_points`` is returned.
+
+    Returns
+    -------
+    types.SimpleNamespace
+        ``xyz`` (float64 [N, 3], world frame), ``semantic``, ``instance`` (int64 [N]), ``confidence``
+        (float32 [N]) -- the fields of the export module's labelled points.
+    """
+    from types import SimpleNamespace
+
+    from lift3d.render.images import render_frame
+
+    frames = list(range(len(scene))) if frames is None else [int(i) for i in frames]
+    cams = scene.cameras
+    total = float(sum(int(cams.width[i]) * int(cams.height[i]) for i in frames))
+    ds = max(1, int(math.floor(math.sqrt(total / max(num_points, 1)))))
+    rays = loaded.rays(scene)
+    parts: list[tuple[np.ndarray, ...]] = []
+    for i in progress_bar(frames, desc="eval: points from depth", disable=not progress, unit="frame"):
+        r = render_frame(loaded.model, rays, i, loaded.norm.scale, downscale=ds)
+        h, w = r.depth.shape
+        vv, uu = np.mgrid[0:h, 0:w]
+        # The same pixel positions as RayGenerator.image_rays: centre of each ds×ds block.
+        off = (ds - 1) / 2.0
+        ok = (r.opacity >= min_opacity) & (r.depth > 0)
+        if not ok.any():
+            continue
+        x, y = cams.normalized_coords(i, uu[ok] * ds + off, vv[ok] * ds + off)
+        z = r.depth[ok].astype(np.float64)
+        p_cam = np.stack([x * z, y * z, z], -1)
+        c2w = cams.c2w_opencv[i]
+        xyz = p_cam @ c2w[:3, :3].T + c2w[:3, 3]
+        sem = r.semantic[ok] if r.semantic is not None else np.zeros(len(z), np.int64)
+        inst = r.instance[ok] if r.instance is not None else np.zeros(len(z), np.int64)
+        conf = r.confidence[ok] if r.confidence is not None else np.ones(len(z), np.float32)
+        parts.append((xyz, sem.astype(np.int64), inst.astype(np.int64), conf.astype(np.float32)))
+    if not parts:
+        return SimpleNamespace(xyz=np.zeros((0, 3)), semantic=np.zeros(0, np.int64), instance=np.zeros(0, np.int64),
+                               confidence=np.zeros(0, np.float32))
+    xyz, sem, inst, conf = (np.concatenate(a) for a in zip(*parts))
+    if len(xyz) > num_points:
+        keep = np.sort(np.random.default_rng(seed).choice(len(xyz), num_points, replace=False))
+        xyz, sem, inst, conf = xyz[keep], sem[keep], inst[keep], conf[keep]
+    return SimpleNamespace(xyz=xyz, semantic=sem, instance=inst, confidence=conf)
+
+
+def _labelled_points(loaded, scene: Scene, num_points: int, progress: bool):
+    """The run's labelled point cloud: the export module's surface points, or rendered depth without it."""
+    try:
+        from lift3d.export.pointcloud import extract_labelled_points
+    except ImportError as exc:
+        # Only "the module does not exist (yet)" falls back; a broken export module is a bug to surface.
+        if getattr(exc, "name", None) not in ("lift3d.export.pointcloud", "lift3d.export"):
+            raise
+        pts = points_from_rendered_depth(loaded, scene, num_points=num_points, progress=progress)
+        return pts, "rendered_depth"
+    pts = extract_labelled_points(loaded, scene, source="surface", num_points=num_points)
+    return pts, "export.surface"
+
+
+def points3d_block(loaded, scene: Scene, num_points: int = 200_000, progress: bool = True) -> dict | None:
+    """3D metrics of the run's labelled points against ``gt/points.ply`` (None when there is no 3D GT).
+
+    Returns
+    -------
+    dict or None
+        ``miou pq sq rq`` (point labels, ``min_area`` 0), ``accuracy completeness chamfer`` (world units),
+        ``precision recall fscore`` at ``tau`` (1 % of the GT bounding-box diagonal), ``tau``, ``n_pred``,
+        ``n_gt``, ``source`` (``export.surface`` or ``rendered_depth``), ``num_points`` (requested).
+    """
+    gt = scene.gt_points()
+    if gt is None:
+        return None
+    pts, source = _labelled_points(loaded, scene, num_points, progress)
+    r = points3d(np.asarray(pts.xyz, np.float64), np.asarray(pts.semantic).astype(np.int64),
+                 np.asarray(pts.instance).astype(np.int64), gt["xyz"], np.asarray(gt["semantic"]).astype(np.int64),
+                 np.asarray(gt["instance"]).astype(np.int64), things=scene.thing_ids, stuff=scene.stuff_ids)
+    keys = ("miou", "pq", "sq", "rq", "accuracy", "completeness", "chamfer", "precision", "recall", "fscore",
+            "tau", "n_pred", "n_gt")
+    block = {k: r[k] for k in keys}
+    block.update(source=source, num_points=int(num_points), min_area=0.0)
+    return block
+
+
+# --------------------------------------------------------------------------------------- speed
+def time_render(loaded, n_rays: int = 2048, repeats: int = 10, *, warmup: int = 2, scene: Scene | None = None,
+                frame: int | None = None) -> dict:
+    """Milliseconds to render ``n_rays`` rays of a test view with rgb + depth + semantic + instance.
+
+    ``loaded.model.render_chunked(..., chunk_size=n_rays)`` (one chunk, no gradients, label probabilities
+    included) is timed ``repeats`` times after ``warmup`` untimed runs; the rays are spread evenly over the
+    view's pixels so they hit what the camera sees.
+
+    Parameters
+    ----------
+    loaded : LoadedRun
+    n_rays : int
+        Rays per render (2048 in every published number).
+    repeats : int
+        Timed runs (at least 1; 10 or more for a stable median).
+    warmup : int
+        Untimed runs first (allocator, caches, lazy initialisation).
+    scene : Scene, optional
+        Default ``loaded.scene()``.
+    frame : int, optional
+        View to use; default the first test frame.
+
+    Returns
+    -------
+    dict
+        ``median_ms``, ``all_ms`` (list), ``threads`` (``torch.get_num_threads()`` during the runs),
+        ``n_rays``, ``repeats``, ``warmup``, ``device``, ``frame``.
+    """
+    import torch  # here, not at module level: `import lift3d.eval` stays free of torch
+
+    if repeats < 1 or n_rays < 1:
+        raise ValueError("time_render: repeats and n_rays must be positive")
+    scene = loaded.scene() if scene is None else scene
+    if frame is None:
+        test = scene.split("test")
+        frame = int(test[0]) if len(test) else 0
+    o, d, _, _ = loaded.rays(scene).image_rays(int(frame))
+    # Evenly spread pixel indices; views with fewer pixels than n_rays repeat them.
+    idx = torch.as_tensor(np.resize(np.linspace(0, len(o) - 1, min(n_rays, len(o))).round().astype(np.int64), n_rays),
+                          device=o.device)
+    o, d = o[idx].contiguous(), d[idx].contiguous()
+    model = loaded.model
+    was_training = model.training
+    model.eval()
+    cuda = o.device.type == "cuda"
+
+    def once() -> float:
+        if cuda:
+            torch.cuda.synchronize(o.device)
+        t0 = time.perf_counter()
+        model.render_chunked(o, d, with_labels=True, chunk_size=n_rays)
+        if cuda:
+            torch.cuda.synchronize(o.device)
+        return (time.perf_counter() - t0) * 1000.0
+
+    try:
+        for _ in range(max(0, warmup)):
+            once()
+        all_ms = [once() for _ in range(repeats)]
+    finally:
+        if was_training:
+            model.train()
+    return {"median_ms": float(statistics.median(all_ms)), "all_ms": all_ms, "threads": int(torch.get_num_threads()),
+            "n_rays": int(n_rays), "repeats": int(repeats), "warmup": int(warmup), "device": str(o.device),
+            "frame": scene.frames[int(frame)].name}
+
+
+# --------------------------------------------------------------------------------------- JSON
+def json_safe(obj: Any) -> Any:
+    """``obj`` with numpy types turned into Python ones and NaN / ±inf into None (valid strict JSON).
+
+    Examples
+    --------
+    >>> json_safe({"a": float("nan"), "b": [np.float32(1.5), np.inf], "c": np.int64(3)})
+    {'a': None, 'b': [1.5, None], 'c': 3}
+    """
+    if isinstance(obj, dict):
+        return {str(k): json_safe(v) for k, v in obj.items()}
+    if isinstance(obj, (list, tuple)):
+        return [json_safe(v) for v in obj]
+    if isinstance(obj, np.ndarray):
+        return [json_safe(v) for v in obj.tolist()]
+    if isinstance(obj, np.generic):
+        obj = obj.item()
+    if isinstance(obj, float) and not math.isfinite(obj):
+        return None
+    if isinstance(obj, Path):
+        return str(obj)
+    return obj
+
+
+def check_writable(path: str | Path) -> Path:
+    """Fail early (before minutes of rendering) when ``path`` cannot be written.
+
+    Creates the parent folder if needed and writes and removes a temporary file in it.
+
+    Raises
+    ------
+    InputError
+        Naming ``path`` and why it cannot be written.
+    """
+    path = Path(path)
+    if path.is_dir():
+        raise InputError(path, "is a folder; give a file name for the JSON")
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".probe", dir=path.parent)
+        os.close(fd)
+        os.unlink(tmp)
+    except OSError as exc:
+        raise InputError(path, f"cannot be written ({exc.strerror or exc})") from exc
+    return path
+
+
+def write_metrics(metrics: dict, path: str | Path) -> Path:
+    """Write ``metrics`` as strict JSON (NaN / inf as null), atomically."""
+    text = json.dumps(json_safe(metrics), indent=2, allow_nan=False) + "\n"
+    write_text_atomic(path, text)
+    return Path(path)
+
+
+# --------------------------------------------------------------------------------------- the whole eval
+def evaluate_run(
+    run_path: str | Path,
+    split: str = "test",
+    data: str | Path | None = None,
+    with_points3d: bool = True,
+    progress: bool = True,
+    *,
+    device: str = "auto",
+    json_path: str | Path | None = None,
+    write: bool = True,
+    num_points: int = 200_000,
+    timing_repeats: int = 10,
+    chunk_size: int | None = None,
+) -> dict:
+    """Evaluate a trained run: render the split, score it and its pseudo-label baseline, time rendering.
+
+    Parameters
+    ----------
+    run_path : str or Path
+        Run folder written by ``lift3d train``.
+    split : str
+        ``test`` (default), ``val`` or ``train``.
+    data : str or Path, optional
+        Scene folder, when it is not where the run's config says.
+    with_points3d : bool
+        Compute the 3D block when ``gt/points.ply`` exists.
+    progress : bool
+        Progress bars.
+    device : str
+        ``auto``, ``cpu`` or ``cuda[:N]``.
+    json_path : str or Path, optional
+        Also write the metrics here.
+    write : bool
+        Write ``metrics.json`` into the run folder.
+    num_points : int
+        Size of the labelled point cloud scored in 3D.
+    timing_repeats : int
+        Timed repeats of :func:`time_render` (0 skips the timing).
+    chunk_size : int, optional
+        Rays per rendering chunk for the split renders.
+
+    Returns
+    -------
+    dict
+        The content of ``metrics.json`` (see docs/metrics.md), with NaN still as float NaN.
+
+    Raises
+    ------
+    InputError
+        Missing / corrupt run folder or checkpoint, missing scene, unwritable output (named in the message).
+    """
+    from lift3d.train.trainer import load_run
+
+    if json_path is not None:
+        check_writable(json_path)
+    start = time.perf_counter()
+    loaded = load_run(run_path, device)
+    if write:
+        check_writable(loaded.run.metrics_path)
+    scene = loaded.scene(data)
+    frames = [int(i) for i in scene.split(split)]
+    if not frames:
+        raise InputError(scene.root / "transforms.json", f"split {split!r} has no frames")
+
+    rendered = render_split(loaded, scene, frames, chunk_size=chunk_size, progress=progress)
+    metrics: dict[str, Any] = {
+        "run": str(Path(run_path).resolve()),
+        "step": int(loaded.step),
+        "split": split,
+        "frames": len(frames),
+        "frame_names": [scene.frames[i].name for i in frames],
+        "image_size": [int(rendered.rgb[0].shape[1]), int(rendered.rgb[0].shape[0])],
+        "data": str(scene.root.resolve()),
+        "lift3d_version": __version__,
+        "min_area": MIN_AREA,
+    }
+    metrics.update(metrics_from_arrays(scene, frames, rendered))
+    del rendered
+
+    metrics["points3d"] = None
+    if with_points3d and scene.gt_points_path is not None:
+        metrics["points3d"] = points3d_block(loaded, scene, num_points=num_points, progress=progress)
+    elif scene.gt_points_path is None:
+        metrics["notes"].append("no gt/points.ply: no 3D metrics")
+
+    metrics["render_ms_per_2048_rays"] = None
+    metrics["render_timing"] = None
+    if timing_repeats > 0:
+        timing = time_render(loaded, n_rays=2048, repeats=timing_repeats, scene=scene, frame=frames[0])
+        metrics["render_ms_per_2048_rays"] = timing["median_ms"]
+        metrics["render_timing"] = timing
+    metrics["device"] = str(loaded.device)
+    metrics["seconds"] = time.perf_counter() - start
+
+    if write:
+        write_metrics(metrics, loaded.run.metrics_path)
+    if json_path is not None:
+        write_metrics(metrics, json_path)
+    return metrics

@@ -1,0 +1,491 @@
+"""``lift3d render`` and ``lift3d eval`` end to end on a tiny trained run, plus their building blocks.
+
+One session-scoped run (10 views of 48×48, 30 training steps with a small grid) serves every test; each
+test that needs a modified run or scene copies it first.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import io
+import json
+import math
+import os
+import shutil
+import statistics
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+import torch
+
+from lift3d.cli.main import main
+from lift3d.data.images import read_panoptic_png
+from lift3d.data.scene import Category, load_scene
+from lift3d.errors import InputError
+from lift3d.eval.evaluate import (
+    LabelStack,
+    RenderedSplit,
+    compute_2d_metrics,
+    evaluate_run,
+    gt_labels,
+    json_safe,
+    metrics_from_arrays,
+    pseudo_labels,
+    time_render,
+    write_metrics,
+)
+from lift3d.eval.metrics import miou, pq_scene
+from lift3d.eval.report import format_eval_table
+from lift3d.render.images import FrameRender, render_frame
+from lift3d.render.output import (
+    RenderedOutputWriter,
+    load_camera_path,
+    panoptic_segment_ids,
+    resolve_outputs,
+)
+from lift3d.train.trainer import load_run
+
+TOP_KEYS = ["psnr", "miou", "pq_scene", "sq_scene", "rq_scene", "miou_strict", "pq_scene_strict",
+            "sq_scene_strict", "rq_scene_strict", "things", "stuff", "depth", "pseudo_labels", "points3d",
+            "render_ms_per_2048_rays", "split", "frames", "step", "run", "lift3d_version"]
+KEYS_2D = ["miou", "pq_scene", "sq_scene", "rq_scene", "miou_strict", "pq_scene_strict", "sq_scene_strict",
+           "rq_scene_strict", "things", "stuff"]
+ALL_OUTPUTS = ["rgb", "depth", "semantic", "instance", "panoptic"]
+
+
+# --------------------------------------------------------------------------------------- fixtures
+@pytest.fixture(scope="session")
+def trained(tmp_path_factory) -> dict:
+    """A synthetic scene and a 30-step run on it: ``{"scene": Path, "run": Path}``."""
+    from lift3d.synth import make_scene
+    from lift3d.train.trainer import train
+
+    root = tmp_path_factory.mktemp("render_eval")
+    scene = root / "scene"
+    make_scene(scene, kind="indoor", seed=3, n_views=10, width=48, height=48, progress=False)
+    overrides = {"optim": {"steps": 30}, "losses": {"feature": 0.0}, "field": {"grid_resolution_cap": 32},
+                 "data": {"rays_per_image": 64, "patch_size": 8}, "trainer": {"eval_images": 1}}
+    result = train(scene, preset="fast", output_dir=root / "outputs", overrides=overrides, progress=False,
+                   print_summary=False)
+    return {"scene": scene, "run": Path(result.run.path)}
+
+
+@pytest.fixture(scope="session")
+def evaluated(trained, tmp_path_factory) -> dict:
+    """``lift3d eval --json`` on the session run: metrics dict, printed table, JSON path."""
+    out = tmp_path_factory.mktemp("eval_json") / "sub" / "metrics.json"
+    buf = io.StringIO()
+    with contextlib.redirect_stdout(buf):
+        rc = main(["eval", "--run", str(trained["run"]), "--json", str(out), "--quiet", "--num-points", "20000"])
+    assert rc == 0
+    return {"metrics": json.loads((trained["run"] / "metrics.json").read_text()), "stdout": buf.getvalue(),
+            "json": out}
+
+
+@pytest.fixture(scope="session")
+def rendered(trained, tmp_path_factory) -> dict:
+    """``lift3d render`` of the train split (9 frames, every output) at downscale 2."""
+    out = tmp_path_factory.mktemp("render") / "out"
+    with contextlib.redirect_stdout(io.StringIO()):
+        rc = main(["render", "--run", str(trained["run"]), "--split", "train", "--outputs", *ALL_OUTPUTS,
+                   "confidence", "--output-dir", str(out), "--downscale", "2", "--chunk-size", "500", "--quiet"])
+    assert rc == 0
+    return {"dir": out, "downscale": 2, "split": "train"}
+
+
+def _strict_json(path: Path):
+    """Parse JSON refusing NaN / Infinity (which Python's json would otherwise accept)."""
+    def bad(name):
+        raise ValueError(f"non-standard JSON constant {name} in {path}")
+    return json.loads(Path(path).read_text(), parse_constant=bad)
+
+
+def _read(path: Path) -> np.ndarray:
+    img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    assert img is not None, path
+    return img
+
+
+# --------------------------------------------------------------------------------------- render
+def test_render_writes_every_output_with_sizes_and_dtypes(trained, rendered):
+    scene = load_scene(trained["scene"])
+    frames = scene.split(rendered["split"])
+    stems = [scene.frames[i].name for i in frames]
+    ds = rendered["downscale"]
+    for i, stem in zip(frames, stems):
+        h, w = int(scene.cameras.height[i]) // ds, int(scene.cameras.width[i]) // ds
+        expect = {"rgb": (np.uint8, (h, w, 3)), "depth": (np.uint16, (h, w)), "depth_vis": (np.uint8, (h, w, 3)),
+                  "semantic": (np.uint16, (h, w)), "semantic_vis": (np.uint8, (h, w, 3)),
+                  "instance": (np.uint16, (h, w)), "instance_vis": (np.uint8, (h, w, 3)),
+                  "panoptic": (np.uint8, (h, w, 3)), "confidence": (np.uint16, (h, w))}
+        for name, (dtype, shape) in expect.items():
+            img = _read(rendered["dir"] / name / f"{stem}.png")
+            assert img.dtype == dtype and img.shape == shape, (name, img.dtype, img.shape)
+    # Nothing but the requested outputs (and their previews) and panoptic.json.
+    assert sorted(p.name for p in rendered["dir"].iterdir()) == sorted(
+        ["confidence", "depth", "depth_vis", "instance", "instance_vis", "panoptic", "panoptic.json", "rgb",
+         "semantic", "semantic_vis"])
+    # Atomic writes leave no temporary files behind.
+    assert not [p for p in rendered["dir"].rglob(".*") if p.is_file()]
+
+
+def test_render_ids_and_depth_are_exact(trained, rendered):
+    """The 16-bit PNGs hold exactly what the model renders (an independent render_frame call)."""
+    loaded = load_run(trained["run"], "cpu")
+    scene = loaded.scene()
+    rays = loaded.rays(scene)
+    ds = rendered["downscale"]
+    for i in scene.split(rendered["split"])[:3]:
+        stem = scene.frames[i].name
+        ref = render_frame(loaded.model, rays, int(i), loaded.norm.scale, downscale=ds)
+        sem = _read(rendered["dir"] / "semantic" / f"{stem}.png")
+        inst = _read(rendered["dir"] / "instance" / f"{stem}.png")
+        depth_mm = _read(rendered["dir"] / "depth" / f"{stem}.png")
+        np.testing.assert_array_equal(sem, ref.semantic)
+        np.testing.assert_array_equal(inst, np.where(ref.semantic > 0, ref.instance, 0))
+        assert not inst[np.isin(sem, scene.stuff_ids)].any(), "instance must be 0 on stuff"
+        expect_mm = np.where(ref.depth > 0, np.round(ref.depth.astype(np.float64) * 1000), 0)
+        assert np.abs(depth_mm.astype(np.int64) - expect_mm).max() <= 1  # float32 round-off at .5 mm
+        rgb = cv2.cvtColor(_read(rendered["dir"] / "rgb" / f"{stem}.png"), cv2.COLOR_BGR2RGB)
+        assert np.abs(rgb.astype(int) - np.round(ref.rgb * 255).astype(int)).max() <= 1
+
+
+def test_panoptic_png_and_json_agree_and_ids_are_consistent_across_frames(trained, rendered):
+    doc = _strict_json(rendered["dir"] / "panoptic.json")
+    div = doc["info"]["label_divisor"]
+    scene = load_scene(trained["scene"])
+    assert {c["id"] for c in doc["categories"]} == {c.id for c in scene.categories}
+    stems = [scene.frames[i].name for i in scene.split(rendered["split"])]
+    assert [a["file_name"] for a in doc["annotations"]] == [f"{s}.png" for s in stems]
+    pair_to_id: dict[tuple[int, int], int] = {}
+    for ann in doc["annotations"]:
+        stem = Path(ann["file_name"]).stem
+        ids = read_panoptic_png(rendered["dir"] / "panoptic" / ann["file_name"])
+        sem = _read(rendered["dir"] / "semantic" / f"{stem}.png").astype(np.int64)
+        inst = _read(rendered["dir"] / "instance" / f"{stem}.png").astype(np.int64)
+        conf = _read(rendered["dir"] / "confidence" / f"{stem}.png").astype(np.float64) / 65535
+        info = {s["id"]: s for s in ann["segments_info"]}
+        assert set(np.unique(ids[ids > 0]).tolist()) == set(info)
+        assert sum(s["area"] for s in info.values()) == int((ids > 0).sum())
+        for sid, s in info.items():
+            m = ids == sid
+            assert s["area"] == int(m.sum())
+            assert set(np.unique(sem[m]).tolist()) == {s["category_id"]}
+            assert len(np.unique(inst[m])) == 1
+            assert s["score"] == pytest.approx(conf[m].mean(), abs=1e-4)  # PNG confidence is 16-bit
+            ys, xs = np.nonzero(m)
+            x0, y0 = int(xs.min()), int(ys.min())
+            assert s["bbox"] == [x0, y0, int(xs.max()) - x0 + 1, int(ys.max()) - y0 + 1]
+        # Scene-consistent: every (class, instance) pair has one id in every frame.
+        for c, k, sid in zip(sem.ravel().tolist(), inst.ravel().tolist(), ids.ravel().tolist()):
+            assert pair_to_id.setdefault((c, k), sid) == sid
+            assert sid == c * div + k
+    assert len(set(pair_to_id.values())) == len(pair_to_id)
+
+
+def test_writer_panoptic_ids_consistent_for_the_same_instance_in_two_frames(tmp_path):
+    """Two frames that show the same things at different places and sizes get the same segment ids."""
+    cats = [Category(1, "wall", False, (10, 20, 30)), Category(5, "chair", True, (200, 0, 0))]
+    w = RenderedOutputWriter(tmp_path, resolve_outputs(["panoptic", "semantic", "instance"]), cats,
+                             num_instance_channels=40)
+    frames = []
+    for shift in (0, 3):
+        sem = np.ones((8, 10), np.int64)
+        inst = np.zeros((8, 10), np.int64)
+        sem[1 + shift:4 + shift, 2:5] = 5
+        inst[1 + shift:4 + shift, 2:5] = 7
+        sem[0, 6 + shift:] = 5
+        inst[0, 6 + shift:] = 33
+        conf = np.full((8, 10), 0.5, np.float32)
+        conf[sem == 5] = 0.9
+        frames.append((sem, inst))
+        w.write(f"f{shift}", FrameRender(np.zeros((8, 10, 3), np.float32), np.ones((8, 10), np.float32),
+                                         np.ones((8, 10), np.float32), sem, inst, conf))
+    w.finish()
+    doc = _strict_json(tmp_path / "panoptic.json")
+    segs = [{s["id"]: s for s in a["segments_info"]} for a in doc["annotations"]]
+    assert set(segs[0]) == set(segs[1]) == {1000, 5007, 5033}
+    assert segs[0][5007]["area"] == 9 and segs[1][5033]["area"] == 1
+    assert segs[0][5007]["score"] == pytest.approx(0.9) and segs[0][1000]["score"] == pytest.approx(0.5)
+    for (sem, inst), stem in zip(frames, ("f0", "f3")):
+        ids = read_panoptic_png(tmp_path / "panoptic" / f"{stem}.png")
+        np.testing.assert_array_equal(ids, panoptic_segment_ids(sem, inst, 1000))
+    # Instance ids ≥ 1000 need a larger divisor rather than colliding with the next class.
+    assert RenderedOutputWriter(tmp_path, ["panoptic"], cats, num_instance_channels=1000).label_divisor == 10000
+    with pytest.raises(ValueError):
+        panoptic_segment_ids(np.array([[1]]), np.array([[1000]]), 1000)
+
+
+def test_render_downscale_and_camera_path_match_split_render(trained, tmp_path):
+    scene = load_scene(trained["scene"])
+    test = [int(i) for i in scene.split("test")]
+    cams = scene.cameras
+    path = {"camera_path": [{"camera_to_world": cams.c2w[i].tolist(), "fl_x": float(cams.fx[i]),
+                             "fl_y": float(cams.fy[i]), "cx": float(cams.cx[i]), "cy": float(cams.cy[i]),
+                             "w": int(cams.width[i]), "h": int(cams.height[i]), "name": f"cam{k}"}
+                            for k, i in enumerate(test)]}
+    (tmp_path / "path.json").write_text(json.dumps(path))
+    with contextlib.redirect_stdout(io.StringIO()):
+        assert main(["render", "--run", str(trained["run"]), "--output-dir", str(tmp_path / "split"), "--outputs",
+                     "rgb", "semantic", "--no-previews", "--downscale", "2", "--quiet"]) == 0
+        assert main(["render", "--run", str(trained["run"]), "--output-dir", str(tmp_path / "path"), "--outputs",
+                     "rgb", "semantic", "--no-previews", "--downscale", "2", "--quiet",
+                     "--camera-path", str(tmp_path / "path.json")]) == 0
+    assert sorted(p.name for p in (tmp_path / "split").iterdir()) == ["rgb", "semantic"]
+    for k, i in enumerate(test):
+        a = _read(tmp_path / "split" / "rgb" / f"{scene.frames[i].name}.png")
+        b = _read(tmp_path / "path" / "rgb" / f"cam{k}.png")
+        assert a.shape == (int(cams.height[i]) // 2, int(cams.width[i]) // 2, 3)
+        np.testing.assert_array_equal(a, b)
+
+
+def test_camera_path_formats_and_errors(tmp_path, trained):
+    scene = load_scene(trained["scene"])
+    c2w = scene.cameras.c2w[0]
+    p = tmp_path / "ns.json"
+    # nerfstudio viewer style: flat row-major matrix, render size and vertical fov in degrees.
+    p.write_text(json.dumps({"render_width": 40, "render_height": 30,
+                             "camera_path": [{"camera_to_world": c2w.ravel().tolist(), "fov": 90.0}]}))
+    cp = load_camera_path(p)
+    assert cp.stems == ["frame_00000"] and cp.cameras.width[0] == 40 and cp.cameras.height[0] == 30
+    assert cp.cameras.fy[0] == pytest.approx(15.0) and cp.cameras.cx[0] == 20.0
+    np.testing.assert_allclose(cp.cameras.c2w[0], c2w)
+    # Missing intrinsics come from the scene's camera (a bare list of cameras is accepted).
+    p.write_text(json.dumps([{"transform_matrix": c2w.tolist()}]))
+    cp = load_camera_path(p, defaults=scene.cameras)
+    assert cp.cameras.fx[0] == scene.cameras.fx[0] and cp.cameras.width[0] == scene.cameras.width[0]
+    with pytest.raises(InputError, match="fl_x|size"):
+        load_camera_path(p)
+    bad = c2w.copy()
+    bad[:3, :3] *= 2
+    for doc, msg in (({"camera_path": []}, "camera_path"), ({"camera_path": [{"fov": 50}]}, "camera_to_world"),
+                     ({"camera_path": [{"camera_to_world": bad.tolist(), "w": 4, "h": 4, "fov": 50}]}, "rigid")):
+        p.write_text(json.dumps(doc))
+        with pytest.raises(InputError, match=msg) as e:
+            load_camera_path(p)
+        assert str(p) in str(e.value)
+    p.write_text("{not json")
+    with pytest.raises(InputError, match="JSON"):
+        load_camera_path(p)
+
+
+# --------------------------------------------------------------------------------------- 2D metrics
+def test_compute_2d_metrics_of_gt_as_prediction_is_perfect(trained):
+    scene = load_scene(trained["scene"])
+    frames = list(range(len(scene)))
+    gt = gt_labels(scene, frames)
+    r = compute_2d_metrics(gt, gt, scene.thing_ids, scene.stuff_ids)
+    for k in ("miou", "pq_scene", "sq_scene", "rq_scene", "miou_strict", "pq_scene_strict", "sq_scene_strict",
+              "rq_scene_strict"):
+        assert r[k] == 1.0, k
+    for part in ("things", "stuff"):
+        assert r[part]["pq"] == r[part]["pq_strict"] == 1.0 and r[part]["n"] > 0
+    assert r["n_classes_strict"] >= r["n_classes"] > 0
+
+    # Renumbering GT instances consistently keeps PQ at 1; per-frame ids (what a 2D segmenter gives) do not,
+    # and so does the metric code notice a wrong class.
+    frame_of_pixel = np.repeat(np.arange(len(frames)), gt.semantic.size // len(frames))
+    renumbered = LabelStack(gt.semantic, np.where(gt.instance > 0, gt.instance + 17, 0))
+    assert compute_2d_metrics(renumbered, gt, scene.thing_ids, scene.stuff_ids)["pq_scene_strict"] == 1.0
+    per_frame = LabelStack(gt.semantic, np.where(gt.instance > 0, gt.instance + 1000 * frame_of_pixel, 0))
+    assert compute_2d_metrics(per_frame, gt, scene.thing_ids, scene.stuff_ids)["things"]["pq_strict"] < 0.5
+    wrong = LabelStack(np.where(gt.semantic == scene.stuff_ids[0], scene.stuff_ids[1], gt.semantic), gt.instance)
+    assert compute_2d_metrics(wrong, gt, scene.thing_ids, scene.stuff_ids)["miou_strict"] < 1.0
+
+
+def test_metrics_from_arrays_with_a_perfect_prediction(trained):
+    """The whole 2D assembly on a prediction built from GT: PQ / mIoU 1, depth error 0, PSNR inf → null."""
+    scene = load_scene(trained["scene"])
+    frames = [int(i) for i in scene.split("test")]
+    labs = [scene.gt_labels(i) for i in frames]
+    pred = RenderedSplit(frames, [scene.image(i).astype(np.float32) / 255 for i in frames],
+                         [scene.depth(i) for i in frames], [x.semantic for x in labs], [x.instance for x in labs],
+                         [np.ones(x.semantic.shape, np.float32) for x in labs])
+    m = metrics_from_arrays(scene, frames, pred)
+    assert m["pq_scene"] == m["pq_scene_strict"] == m["miou"] == 1.0
+    assert m["psnr"] == math.inf and json_safe(m)["psnr"] is None
+    assert m["depth"]["rmse"] == 0.0 and m["depth"]["n_valid"] > 0
+    assert m["gt"] == {"panoptic": True, "depth": True, "points": True}
+    assert m["pseudo_labels"]["pq_scene"] < 1.0  # the simulated segmenter is noisy
+
+
+def test_pseudo_label_baseline_block_matches_independent_computation(trained, evaluated):
+    scene = load_scene(trained["scene"])
+    frames = [int(i) for i in scene.split("test")]
+    ps = np.stack([scene.pseudo_labels(i).semantic for i in frames])
+    pi = np.stack([scene.pseudo_labels(i).instance for i in frames])
+    gs = np.stack([scene.gt_labels(i).semantic for i in frames])
+    gi = np.stack([scene.gt_labels(i).instance for i in frames])
+    base = evaluated["metrics"]["pseudo_labels"]
+    for min_area, suffix in ((0.005, ""), (0.0, "_strict")):
+        pq = pq_scene(ps, pi, gs, gi, scene.thing_ids, scene.stuff_ids, min_area=min_area)
+        assert base["pq_scene" + suffix] == pytest.approx(pq["pq"], abs=1e-12)
+        assert base["sq_scene" + suffix] == pytest.approx(pq["sq"], abs=1e-12)
+        assert base["rq_scene" + suffix] == pytest.approx(pq["rq"], abs=1e-12)
+        assert base["things"]["pq" + suffix] == pytest.approx(pq["things"]["pq"], abs=1e-12)
+        assert base["stuff"]["pq" + suffix] == pytest.approx(pq["stuff"]["pq"], abs=1e-12)
+        assert base["miou" + suffix] == pytest.approx(miou(ps, gs, min_area=min_area)["miou"], abs=1e-12)
+    assert 0 < base["pq_scene"] < 1
+    # And the API helper reads the same labels.
+    np.testing.assert_array_equal(pseudo_labels(scene, frames).semantic, ps.ravel())
+
+
+# --------------------------------------------------------------------------------------- eval end to end
+def test_eval_writes_metrics_json_with_every_key(trained, evaluated):
+    m = _strict_json(trained["run"] / "metrics.json")
+    assert m == _strict_json(evaluated["json"])
+    for key in TOP_KEYS:
+        assert key in m, key
+    for key in KEYS_2D:
+        assert key in m["pseudo_labels"], key
+    for part in ("things", "stuff"):
+        assert set(m[part]) >= {"pq", "sq", "rq", "pq_strict", "sq_strict", "rq_strict"}
+    scene = load_scene(trained["scene"])
+    assert m["split"] == "test" and m["frames"] == len(scene.split("test"))
+    assert m["step"] == 30 and m["run"] == str(trained["run"].resolve())
+    assert isinstance(m["psnr"], float) and 5 < m["psnr"] < 60
+    assert set(m["depth"]) >= {"abs_rel", "rmse", "mae", "n_valid"} and m["depth"]["n_valid"] > 0
+    p3 = m["points3d"]
+    assert set(p3) >= {"miou", "pq", "chamfer", "fscore", "accuracy", "completeness", "tau", "source"}
+    assert p3["n_gt"] == len(scene.gt_points()["xyz"]) and 0 < p3["n_pred"] <= 20000
+    assert m["render_ms_per_2048_rays"] > 0
+    t = m["render_timing"]
+    assert len(t["all_ms"]) == 10 and t["warmup"] == 2 and t["n_rays"] == 2048
+    assert m["render_ms_per_2048_rays"] == pytest.approx(statistics.median(t["all_ms"]))
+    # The printed table shows both columns, the things/stuff split and the 3D line.
+    out = evaluated["stdout"]
+    for text in ("lifted", "pseudo-labels", "PQ^scene", "things", "stuff", "mIoU", "PSNR", "3D (", "2048 rays",
+                 "metrics.json"):
+        assert text in out, text
+
+
+def test_time_render_reports_median_and_threads(trained):
+    loaded = load_run(trained["run"], "cpu")
+    r = time_render(loaded, n_rays=300, repeats=3, warmup=1)
+    assert len(r["all_ms"]) == 3 and all(x > 0 for x in r["all_ms"])
+    assert r["median_ms"] == statistics.median(r["all_ms"])
+    assert r["threads"] == torch.get_num_threads() and r["n_rays"] == 300
+    with pytest.raises(ValueError):
+        time_render(loaded, repeats=0)
+
+
+def test_eval_without_gt_panoptic_computes_psnr_only(trained, tmp_path):
+    scene_copy = tmp_path / "nogt"
+    shutil.copytree(trained["scene"], scene_copy)
+    shutil.rmtree(scene_copy / "gt" / "panoptic")
+    (scene_copy / "gt" / "panoptic.json").unlink()
+    meta = json.loads((scene_copy / "transforms.json").read_text())
+    for f in meta["frames"]:
+        f.pop("gt_panoptic_file_path", None)
+    (scene_copy / "transforms.json").write_text(json.dumps(meta))
+    m = evaluate_run(trained["run"], data=scene_copy, with_points3d=False, progress=False, write=False,
+                     timing_repeats=0)
+    assert isinstance(m["psnr"], float) and m["miou"] is None and m["pq_scene"] is None
+    assert m["pseudo_labels"] is None and m["depth"] is not None
+    assert any("no GT panoptic" in n for n in m["notes"])
+    table = format_eval_table(json_safe(m))
+    assert "no GT panoptic" in table and "PQ^scene" not in table and "PSNR" in table
+
+
+@pytest.mark.parametrize("damage", ["corrupt", "missing"])
+def test_missing_or_corrupt_checkpoint_is_an_input_error_naming_the_path(trained, tmp_path, damage, capsys):
+    run = tmp_path / "run"
+    shutil.copytree(trained["run"], run)
+    ckpts = sorted((run / "checkpoints").glob("*.pt"))
+    for c in ckpts:
+        if damage == "corrupt":
+            c.write_bytes(b"not a checkpoint" * 10)
+        else:
+            c.unlink()
+    with pytest.raises(InputError) as e:
+        evaluate_run(run, progress=False)
+    assert str(run / "checkpoints") in str(e.value)
+    if damage == "corrupt":
+        assert ckpts[-1].name in str(e.value)
+    assert main(["render", "--run", str(run), "--output-dir", str(tmp_path / "r"), "--quiet"]) == 2
+    assert main(["eval", "--run", str(run), "--quiet"]) == 2
+    err = capsys.readouterr().err
+    lines = err.strip().splitlines()
+    assert len(lines) == 2 and all(str(run / "checkpoints") in line for line in lines), err
+    assert "Traceback" not in err
+
+
+def _read_only_dir(tmp_path: Path) -> Path:
+    """A folder this process cannot create files in (root ignores permission bits: use /proc then)."""
+    if os.geteuid() != 0:
+        d = tmp_path / "ro"
+        d.mkdir()
+        d.chmod(0o555)
+        return d
+    return Path("/proc")
+
+
+@pytest.mark.parametrize("where", ["read-only dir", "below a file"])
+def test_json_to_unwritable_place_is_an_input_error(trained, tmp_path, where, capsys):
+    if where == "read-only dir":
+        target = _read_only_dir(tmp_path) / "metrics.json"
+    else:
+        (tmp_path / "file").write_text("x")
+        target = tmp_path / "file" / "metrics.json"
+    before = (trained["run"] / "metrics.json").read_bytes() if (trained["run"] / "metrics.json").exists() else None
+    with pytest.raises(InputError) as e:
+        evaluate_run(trained["run"], json_path=target, progress=False)
+    assert str(target) in str(e.value)
+    assert main(["eval", "--run", str(trained["run"]), "--json", str(target), "--quiet"]) == 2
+    assert str(target) in capsys.readouterr().err
+    # Checked before any work: the run's metrics.json is untouched.
+    after = (trained["run"] / "metrics.json").read_bytes() if (trained["run"] / "metrics.json").exists() else None
+    assert before == after
+
+
+def test_write_metrics_is_strict_json(tmp_path):
+    path = write_metrics({"a": float("nan"), "b": {"c": np.float32(2.5), "d": [np.inf, -np.inf, 1]},
+                          "e": np.arange(3)}, tmp_path / "m.json")
+    assert _strict_json(path) == {"a": None, "b": {"c": 2.5, "d": [None, None, 1]}, "e": [0, 1, 2]}
+
+
+def test_render_rejects_bad_options(trained, tmp_path, capsys):
+    assert main(["render", "--run", str(tmp_path / "nope"), "--output-dir", str(tmp_path / "o"), "--quiet"]) == 2
+    assert "run folder not found" in capsys.readouterr().err
+    assert main(["render", "--run", str(trained["run"]), "--output-dir", str(tmp_path / "o"), "--downscale", "0",
+                 "--quiet"]) == 2
+    assert "--downscale" in capsys.readouterr().err
+    with pytest.raises(SystemExit):
+        main(["render", "--run", str(trained["run"]), "--output-dir", str(tmp_path / "o"), "--outputs", "normals"])
+
+
+def test_points_from_rendered_depth_lie_on_the_rendered_surface(trained):
+    """The fallback 3D points project back onto their pixel centres at the rendered z-depth."""
+    from lift3d.eval.evaluate import points_from_rendered_depth
+
+    loaded = load_run(trained["run"], "cpu")
+    scene = loaded.scene()
+    i = int(scene.split("test")[0])
+    ref = render_frame(loaded.model, loaded.rays(scene), i, loaded.norm.scale)
+    pts = points_from_rendered_depth(loaded, scene, num_points=10**6, frames=[i], min_opacity=0.0)
+    hit = ref.depth > 0
+    assert len(pts.xyz) == int(hit.sum()) > 0
+    uv, z = scene.cameras.project(i, pts.xyz)
+    vv, uu = np.nonzero(hit)
+    np.testing.assert_allclose(uv, np.stack([uu + 0.5, vv + 0.5], -1), atol=1e-3)
+    np.testing.assert_allclose(z, ref.depth[hit], rtol=1e-5)
+    np.testing.assert_array_equal(pts.semantic, ref.semantic[hit])
+    np.testing.assert_array_equal(pts.instance, ref.instance[hit])
+    sub = points_from_rendered_depth(loaded, scene, num_points=50, frames=[i], min_opacity=0.0)
+    assert len(sub.xyz) == 50
+
+
+def test_points3d_block_falls_back_to_rendered_depth_without_the_export_module(trained, monkeypatch):
+    import sys
+
+    from lift3d.eval.evaluate import points3d_block
+
+    monkeypatch.setitem(sys.modules, "lift3d.export.pointcloud", None)  # makes the import fail
+    loaded = load_run(trained["run"], "cpu")
+    scene = loaded.scene()
+    block = points3d_block(loaded, scene, num_points=3000, progress=False)
+    assert block["source"] == "rendered_depth" and 0 < block["n_pred"] <= 3000
+    assert block["n_gt"] == len(scene.gt_points()["xyz"])
+    assert 0 <= block["fscore"] <= 1 and block["chamfer"] > 0
