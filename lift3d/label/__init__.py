@@ -1,0 +1,496 @@
+"""``lift3d label``: 2D panoptic pseudo-labels for a scene folder from a real segmenter.
+
+Two sources, one writer:
+
+* :func:`label_with_model` runs a Mask2Former panoptic model through Hugging Face ``transformers``
+  (:mod:`lift3d.label.mask2former`, optional test-time augmentation from :mod:`lift3d.label.tta`);
+* :func:`label_from_predictions` imports detectron2-style ``(panoptic_seg, segments_info)`` files made
+  elsewhere (:mod:`lift3d.label.predictions`).
+
+Both map the segmenter's classes onto the scene's vocabulary (:mod:`lift3d.label.classes`) and write, per
+frame, ``panoptic/<name>.png`` (COCO panoptic PNG) and optionally ``confidence/<name>.png`` (16-bit, [0, 1]),
+then ``panoptic.json`` (with per-segment ``score``) and ``transforms.json`` (frames get
+``panoptic_file_path``/``confidence_file_path``, the top level gets ``categories``; everything else is kept).
+
+Nothing in the scene changes until every frame is labelled: files are written to a staging folder inside
+the scene and moved into place at the end (each move is an atomic rename), the JSON files last, each
+written atomically. An error or Ctrl-C midway leaves the scene as it was. Ground truth (``gt/``) is never
+touched; when the scene has some, the new vocabulary must keep the categories it uses (same id, name and
+thing/stuff), otherwise evaluation would compare different classes.
+"""
+
+from __future__ import annotations
+
+import io
+import json
+import os
+import shutil
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Iterator, Sequence
+
+import numpy as np
+
+from lift3d.data.images import read_rgb, write_label_map, write_panoptic_png
+from lift3d.data.scene import Category, Segment, load_scene
+from lift3d.errors import InputError
+from lift3d.utils.atomic import write_bytes_atomic, write_json_atomic
+from lift3d.utils.progress import progress_bar
+
+__all__ = ["label_with_model", "label_from_predictions", "LabelScene", "read_label_scene", "FrameLabels"]
+
+#: Staging folder inside the scene (removed at the end, or at the start of the next run after a crash).
+STAGING_DIR = ".lift3d-label-staging"
+
+
+@dataclass
+class FrameLabels:
+    """What is written for one frame.
+
+    Attributes
+    ----------
+    panoptic : np.ndarray
+        ``int64 [H, W]`` segment ids, 0 = void.
+    segments : list of Segment
+        One per non-zero id of ``panoptic`` (category ids of the new vocabulary, score in [0, 1]).
+    confidence : np.ndarray or None
+        ``float32 [H, W]`` per-pixel confidence in [0, 1] (multiplied by the segment score when training).
+    probabilities : dict or None
+        Arrays saved to ``probabilities/<name>.npz`` (TTA class probabilities and confidences).
+    """
+
+    panoptic: np.ndarray
+    segments: list[Segment]
+    confidence: np.ndarray | None = None
+    probabilities: dict[str, np.ndarray] | None = None
+
+
+@dataclass
+class LabelFrame:
+    """One frame of the scene to label."""
+
+    index: int
+    name: str
+    image_path: Path
+    size: tuple[int, int] | None  # (H, W) transforms.json promises, when it says
+
+
+@dataclass
+class LabelScene:
+    """A scene folder as ``label`` needs it: its ``transforms.json`` and frames (labels not required)."""
+
+    root: Path
+    meta: dict
+    frames: list[LabelFrame]
+    panoptic_json: Path
+    gt_categories: dict[int, Category] = field(default_factory=dict)  # categories the GT uses, by id
+
+
+def _read_json(path: Path) -> Any:
+    if not path.is_file():
+        raise InputError(path, "file not found")
+    try:
+        return json.loads(path.read_text(encoding="utf-8"))
+    except json.JSONDecodeError as exc:
+        raise InputError(path, f"not valid JSON (line {exc.lineno}: {exc.msg})") from exc
+    except (OSError, UnicodeDecodeError) as exc:
+        raise InputError(path, f"cannot be read ({exc})") from exc
+
+
+def _int_or_none(value: Any) -> int | None:
+    try:
+        return int(value) if value is not None else None
+    except (TypeError, ValueError):
+        return None
+
+
+def read_label_scene(root: str | Path) -> LabelScene:
+    """Read what labelling needs from a scene folder; the scene may have no pseudo-labels yet.
+
+    Raises
+    ------
+    InputError
+        Missing folder or ``transforms.json``, frames without images, two frames with the same file stem.
+    """
+    root = Path(root)
+    if not root.is_dir():
+        raise InputError(root, "scene folder not found")
+    tpath = root / "transforms.json"
+    meta = _read_json(tpath)
+    if not isinstance(meta, dict) or not isinstance(meta.get("frames"), list) or not meta["frames"]:
+        raise InputError(tpath, "frames: missing or empty")
+    frames: list[LabelFrame] = []
+    names: dict[str, int] = {}
+    for k, fr in enumerate(meta["frames"]):
+        fp = fr.get("file_path") if isinstance(fr, dict) else None
+        if not isinstance(fp, str) or not fp:
+            raise InputError(tpath, f"frames[{k}].file_path: must be a non-empty path string")
+        image = Path(fp) if os.path.isabs(fp) else root / fp
+        if not image.is_file():
+            raise InputError(image, f"file not found (from frames[{k}].file_path in transforms.json)")
+        name = Path(fp).stem
+        if name in names:
+            raise InputError(tpath, f"frames[{k}]: file stem {name!r} also names frames[{names[name]}] "
+                                    "(labels are named by stem)")
+        names[name] = k
+        h = _int_or_none(fr.get("h", meta.get("h")))
+        w = _int_or_none(fr.get("w", meta.get("w")))
+        frames.append(LabelFrame(k, name, image, (h, w) if h and w else None))
+    pan_json = root / str(meta.get("panoptic_json", "panoptic.json"))
+    return LabelScene(root, meta, frames, pan_json, _gt_categories(root, meta))
+
+
+def _gt_categories(root: Path, meta: dict) -> dict[int, Category]:
+    """The categories the ground truth uses (id → category as the scene defines it today)."""
+    gt_json = root / "gt" / "panoptic.json"
+    if not gt_json.is_file():
+        return {}
+    from lift3d.convert.predictions import parse_categories
+
+    raw = _read_json(gt_json)
+    cats_raw = meta.get("categories") or (raw.get("categories") if isinstance(raw, dict) else None)
+    where = root / "transforms.json" if meta.get("categories") else gt_json
+    defined = {c.id: c for c in parse_categories(cats_raw, where)} if cats_raw else {}
+    used: set[int] = set()
+    for ann in raw.get("annotations", []) if isinstance(raw, dict) else []:
+        for info in ann.get("segments_info", []) if isinstance(ann, dict) else []:
+            cid = _int_or_none(info.get("category_id")) if isinstance(info, dict) else None
+            if cid is not None:
+                used.add(cid)
+    return {cid: defined.get(cid, Category(cid, f"class_{cid}", False)) for cid in sorted(used)}
+
+
+def check_gt_compatible(scene: LabelScene, categories: Sequence[Category]) -> None:
+    """Refuse a vocabulary that would change what the ground truth's category ids mean."""
+    if not scene.gt_categories:
+        return
+    new = {c.id: c for c in categories}
+    problems = []
+    for cid, old in scene.gt_categories.items():
+        c = new.get(cid)
+        if c is None:
+            problems.append(f"{cid} {old.name!r} missing")
+        elif c.name.casefold() != old.name.casefold() or c.isthing != old.isthing:
+            problems.append(f"{cid} is {old.name!r} ({'thing' if old.isthing else 'stuff'}) in the GT but "
+                            f"{c.name!r} ({'thing' if c.isthing else 'stuff'}) in the new labels")
+    if problems:
+        listed = "; ".join(problems[:3]) + ("; ..." if len(problems) > 3 else "")
+        raise InputError(scene.root / "gt" / "panoptic.json",
+                         f"the ground truth uses categories the new labels' vocabulary does not keep ({listed}): "
+                         "pass --classes classes.json mapping the segmenter's classes onto the scene's categories "
+                         "(same ids, names and thing/stuff)")
+
+
+# --------------------------------------------------------------------------------------------- writing
+def _check_frame(frame: LabelFrame, image: np.ndarray) -> None:
+    if frame.size is not None and tuple(image.shape[:2]) != frame.size:
+        h, w = frame.size
+        raise InputError(frame.image_path, f"image is {image.shape[1]}x{image.shape[0]} but transforms.json says "
+                                           f"w={w}, h={h}")
+
+
+def _check_labels(frame: LabelFrame, labels: FrameLabels, image_shape: tuple[int, int],
+                  categories: dict[int, Category]) -> None:
+    """Internal consistency of what is about to be written (ids ↔ segments_info, sizes, ranges)."""
+    if labels.panoptic.shape != image_shape:
+        raise RuntimeError(f"{frame.name}: labels are {labels.panoptic.shape}, image is {image_shape}")
+    listed = [s.id for s in labels.segments]
+    present = set(np.unique(labels.panoptic).tolist()) - {0}
+    if len(set(listed)) != len(listed) or present != set(listed):
+        raise RuntimeError(f"{frame.name}: segment ids {sorted(present)} in the map but {sorted(listed)} listed")
+    for s in labels.segments:
+        if s.category_id not in categories or not 0.0 <= s.score <= 1.0:
+            raise RuntimeError(f"{frame.name}: bad segment {s}")
+    if labels.confidence is not None:
+        c = labels.confidence
+        if c.shape != image_shape or not np.all(np.isfinite(c)) or c.min(initial=0) < 0 or c.max(initial=0) > 1:
+            raise RuntimeError(f"{frame.name}: confidence map out of [0, 1] or of the wrong size")
+
+
+class _Staging:
+    """Files written under ``<scene>/.lift3d-label-staging/`` and moved into place by :meth:`commit`."""
+
+    def __init__(self, root: Path):
+        self.root = root
+        self.dir = root / STAGING_DIR
+        if self.dir.exists():
+            shutil.rmtree(self.dir)  # left by an interrupted run; nothing outside it was changed then
+        self.files: list[str] = []
+
+    def path(self, rel: str) -> Path:
+        self.files.append(rel)
+        return self.dir / rel
+
+    def commit(self) -> None:
+        for rel in self.files:
+            final = self.root / rel
+            final.parent.mkdir(parents=True, exist_ok=True)
+            os.replace(self.dir / rel, final)
+        shutil.rmtree(self.dir, ignore_errors=True)
+
+    def discard(self) -> None:
+        shutil.rmtree(self.dir, ignore_errors=True)
+
+
+def write_labels(scene: LabelScene, categories: Sequence[Category],
+                 labelled: Iterator[tuple[LabelFrame, np.ndarray, FrameLabels]], *, progress: bool = True) -> dict:
+    """Write every frame's labels, then the JSON files; the scene is untouched unless all succeed.
+
+    Parameters
+    ----------
+    scene : LabelScene
+    categories : sequence of Category
+        The new vocabulary (``transforms.json`` ``categories``).
+    labelled : iterator
+        ``(frame, image, labels)`` for every frame of ``scene``, in order.
+    progress : bool
+
+    Returns
+    -------
+    dict
+        Statistics: frames, segments, void fraction, mean score, what was written.
+    """
+    check_gt_compatible(scene, categories)
+    cat_by_id = {c.id: c for c in categories}
+    staging = _Staging(scene.root)
+    annotations, images_json = [], []
+    frames_meta = [dict(f) for f in scene.meta["frames"]]
+    n_segments, void_px, total_px, scores = 0, 0, 0, []
+    wrote_conf = wrote_probs = False
+    done = 0
+    try:
+        bar = progress_bar(labelled, desc="label frames", total=len(scene.frames), unit="frame", disable=not progress)
+        for frame, image, labels in bar:
+            h, w = image.shape[:2]
+            _check_labels(frame, labels, (h, w), cat_by_id)
+            fr = frames_meta[frame.index]
+            rel = f"panoptic/{frame.name}.png"
+            write_panoptic_png(staging.path(rel), labels.panoptic)
+            fr["panoptic_file_path"] = rel
+            # The two-PNG layout would be shadowed by panoptic_file_path anyway; drop it so nobody reads it.
+            fr.pop("semantic_file_path", None)
+            fr.pop("instance_file_path", None)
+            if labels.confidence is not None:
+                rel_c = f"confidence/{frame.name}.png"
+                write_label_map(staging.path(rel_c), np.round(np.clip(labels.confidence, 0.0, 1.0) * 65535.0))
+                fr["confidence_file_path"] = rel_c
+                wrote_conf = True
+            else:
+                fr.pop("confidence_file_path", None)  # it described the old labels
+            if labels.probabilities is not None:
+                buf = io.BytesIO()
+                np.savez_compressed(buf, **labels.probabilities)
+                write_bytes_atomic(staging.path(f"probabilities/{frame.name}.npz"), buf.getvalue())
+                wrote_probs = True
+            ids, counts = np.unique(labels.panoptic, return_counts=True)
+            area = dict(zip(ids.tolist(), counts.tolist()))
+            annotations.append({"image_id": frame.index, "file_name": f"{frame.name}.png",
+                                "segments_info": [s.to_json(area.get(s.id, 0)) for s in labels.segments]})
+            images_json.append({"id": frame.index, "file_name": os.path.basename(fr["file_path"]),
+                                "width": int(w), "height": int(h)})
+            n_segments += len(labels.segments)
+            void_px += int(area.get(0, 0))
+            total_px += int(h * w)
+            scores.extend(s.score for s in labels.segments)
+            done += 1
+        if done != len(scene.frames):
+            raise RuntimeError(f"labelled {done} of {len(scene.frames)} frames")
+    except BaseException:
+        staging.discard()
+        raise
+    cats_json = [c.to_json() for c in categories]
+    meta = dict(scene.meta)
+    meta["categories"] = cats_json
+    meta["frames"] = frames_meta
+    coco = {"images": images_json, "annotations": annotations, "categories": cats_json}
+    staging.commit()
+    write_json_atomic(scene.panoptic_json, coco)
+    write_json_atomic(scene.root / "transforms.json", meta)
+    load_scene(scene.root)  # the result must be a valid scene folder (metadata level; pixels checked above)
+    return {
+        "frames": done,
+        "segments_per_frame": n_segments / max(done, 1),
+        "void_fraction": void_px / max(total_px, 1),
+        "mean_score": float(np.mean(scores)) if scores else None,
+        "categories": len(categories),
+        "confidence": wrote_conf,
+        "probabilities": wrote_probs,
+    }
+
+
+def _frames_with_images(scene: LabelScene) -> Iterator[tuple[LabelFrame, np.ndarray]]:
+    for frame in scene.frames:
+        image = read_rgb(frame.image_path)
+        _check_frame(frame, image)
+        yield frame, image
+
+
+# --------------------------------------------------------------------------------------------- sources
+def label_with_model(scene_dir: str | Path, model: str | Path, *, classes: str | Path | None = None,
+                     tta: bool = False, tta_scales: Sequence[float] = (0.75, 1.0, 1.25), tta_flip: bool = True,
+                     batch_size: int = 1, device: str = "auto", threshold: float = 0.8,
+                     overlap_threshold: float = 0.8, shortest_edge: int | None = None, confidence: bool = True,
+                     save_probabilities: bool = False, cache_dir: str | Path | None = None,
+                     progress: bool = True, labeler: Any = None) -> dict:
+    """Label every frame of a scene with a Mask2Former panoptic model.
+
+    Parameters
+    ----------
+    scene_dir : str or Path
+        The scene folder (``transforms.json`` + images; existing labels are replaced).
+    model : str or Path
+        Local ``save_pretrained`` folder or Hugging Face hub id (:func:`~lift3d.label.mask2former.load_mask2former`).
+    classes : str or Path, optional
+        ``coco`` (default), ``scannet21`` or a ``classes.json`` (:mod:`lift3d.label.classes`).
+    tta : bool
+        Test-time augmentation over ``tta_scales`` × (no flip, flip if ``tta_flip``).
+    batch_size : int
+        Frames per forward pass.
+    device : str
+        ``auto``, ``cpu`` or ``cuda[:N]``.
+    threshold, overlap_threshold : float
+        Mask2Former's panoptic inference thresholds (:class:`~lift3d.label.mask2former.Mask2FormerLabeler`).
+    shortest_edge : int, optional
+        Inference resolution override.
+    confidence : bool
+        Write per-pixel confidence maps.
+    save_probabilities : bool
+        Also write ``probabilities/<name>.npz`` with ``probability`` (``[H, W, K + 1]``, void first),
+        ``confidence`` (TTA-averaged score × mask) and ``confidence_notta`` (Panoptic Lifting's layout).
+    cache_dir : str or Path, optional
+        Hugging Face cache to look in.
+    progress : bool
+    labeler : Mask2FormerLabeler, optional
+        A ready labeler (then ``model``, ``classes``, ``device``, thresholds and ``shortest_edge`` are unused).
+
+    Returns
+    -------
+    dict
+        Statistics of what was written (see :func:`write_labels`) plus ``seconds``, ``classes``, ``passes``.
+    """
+    from lift3d.label.mask2former import Mask2FormerLabeler, load_mask2former, load_mask2former_config
+    from lift3d.label.tta import augmentations
+    from lift3d.utils.device import resolve_device, set_threads
+
+    t0 = time.perf_counter()
+    if batch_size < 1:
+        raise InputError("--batch-size", f"must be at least 1 (got {batch_size})")
+    scene = read_label_scene(scene_dir)
+    if labeler is None:
+        from lift3d.label.classes import load_class_mapping, sources_from_labels
+
+        dev = resolve_device(device)
+        if dev.type == "cpu":
+            set_threads()
+        config = load_mask2former_config(model, cache_dir=cache_dir)
+        mapping = load_class_mapping(classes, sources_from_labels(config.id2label))
+        check_gt_compatible(scene, mapping.categories)  # before loading hundreds of MB of weights
+        net, processor = load_mask2former(model, device=dev, cache_dir=cache_dir, config=config)
+        labeler = Mask2FormerLabeler(net, processor, mapping, threshold=threshold,
+                                     overlap_threshold=overlap_threshold, shortest_edge=shortest_edge)
+    check_gt_compatible(scene, labeler.mapping.categories)  # fail before minutes of inference
+    try:
+        augs = augmentations(tuple(tta_scales), tta_flip) if tta else augmentations()
+    except ValueError as exc:
+        raise InputError("--tta-scales", str(exc)) from None
+
+    def labelled() -> Iterator[tuple[LabelFrame, np.ndarray, FrameLabels]]:
+        batch: list[tuple[LabelFrame, np.ndarray]] = []
+        for item in _frames_with_images(scene):
+            batch.append(item)
+            if len(batch) == batch_size or item[0] is scene.frames[-1]:
+                preds = labeler.predict([im for _, im in batch], augs, keep_probabilities=save_probabilities)
+                for (frame, image), p in zip(batch, preds):
+                    probs = None
+                    if save_probabilities:
+                        probs = {"probability": p.probabilities.astype(np.float16),
+                                 "confidence": p.confidence_tta.astype(np.float16),
+                                 "confidence_notta": p.confidence_notta.astype(np.float16),
+                                 "class_names": np.array(["void"] + [c.name for c in labeler.mapping.categories])}
+                    yield frame, image, FrameLabels(p.panoptic, p.segments, p.confidence if confidence else None, probs)
+                batch = []
+
+    report = write_labels(scene, labeler.mapping.categories, labelled(), progress=progress)
+    report.update(seconds=time.perf_counter() - t0, classes=labeler.mapping.describe(), passes=[str(a) for a in augs],
+                  source=str(model))
+    return report
+
+
+def label_from_predictions(scene_dir: str | Path, predictions_dir: str | Path, *, classes: str | Path | None = None,
+                           prediction_categories: str | Path | None = None, progress: bool = True) -> dict:
+    """Import detectron2-style ``(panoptic_seg, segments_info)`` files (:mod:`lift3d.label.predictions`).
+
+    Parameters
+    ----------
+    scene_dir : str or Path
+        The scene folder.
+    predictions_dir : str or Path
+        One ``<stem>.pt``/``.pth``/``.npz`` per frame, matched by the frame image's file stem.
+    classes : str or Path, optional
+        Target vocabulary (as for :func:`label_with_model`).
+    prediction_categories : str or Path, optional
+        COCO categories JSON naming the classes the files' ``category_id`` values refer to (default:
+        detectron2's contiguous COCO panoptic ids 0..132).
+    progress : bool
+
+    Returns
+    -------
+    dict
+        As :func:`write_labels`, plus ``seconds``, ``classes`` and ``source``.
+    """
+    from lift3d.label.classes import coco_sources, load_class_mapping, sources_from_categories
+    from lift3d.label.predictions import convert_prediction, find_prediction, read_prediction
+
+    t0 = time.perf_counter()
+    scene = read_label_scene(scene_dir)
+    pred_dir = Path(predictions_dir)
+    if not pred_dir.is_dir():
+        raise InputError(pred_dir, "predictions folder not found")
+    if prediction_categories is not None:
+        from lift3d.convert.predictions import load_categories
+
+        sources = sources_from_categories(load_categories(prediction_categories))
+        file_ids = {s.id: s.index for s in sources}
+    else:
+        sources = coco_sources()
+        file_ids = {s.index: s.index for s in sources}  # detectron2 writes contiguous ids
+    mapping = load_class_mapping(classes, sources)
+    check_gt_compatible(scene, mapping.categories)
+    paths = {}
+    for frame in scene.frames:  # every frame needs a prediction: check all before reading any pixel
+        p = find_prediction(pred_dir, frame.name)
+        if p is None:
+            raise InputError(pred_dir, f"no prediction for frame {frame.name!r} (expected {frame.name}.pt, .pth "
+                                       "or .npz; files are matched to images by file stem)")
+        paths[frame.name] = p
+
+    def labelled() -> Iterator[tuple[LabelFrame, np.ndarray, FrameLabels]]:
+        for frame, image in _frames_with_images(scene):
+            pred = read_prediction(paths[frame.name])
+            seg, segments, conf = convert_prediction(pred, mapping, image.shape[:2], file_ids)
+            yield frame, image, FrameLabels(seg, segments, conf)
+
+    report = write_labels(scene, mapping.categories, labelled(), progress=progress)
+    report.update(seconds=time.perf_counter() - t0, classes=mapping.describe(), passes=[], source=str(pred_dir))
+    return report
+
+
+def format_report(report: dict, scene_dir: str | Path) -> str:
+    """A few summary lines for the CLI."""
+    score = "n/a" if report["mean_score"] is None else f"{report['mean_score']:.3f}"
+    written = ["panoptic/", "panoptic.json", "transforms.json (categories, frames)"]
+    if report["confidence"]:
+        written.insert(1, "confidence/")
+    if report["probabilities"]:
+        written.insert(1, "probabilities/")
+    n_passes = len(report["passes"])
+    passes = f", TTA {n_passes} passes ({', '.join(report['passes'])})" if n_passes > 1 else ""
+    return "\n".join([
+        f"labelled {report['frames']} frames of {scene_dir} from {report['source']} "
+        f"in {report['seconds']:.1f} s{passes}",
+        f"  classes: {report['classes']}",
+        f"  {report['segments_per_frame']:.1f} segments per frame, void {100 * report['void_fraction']:.1f}% "
+        f"of pixels, mean segment score {score}",
+        f"  wrote {', '.join(written)}",
+    ])
