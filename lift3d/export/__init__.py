@@ -1,0 +1,235 @@
+"""Labelled geometry out of a trained run: what robot mapping consumes (DESIGN.md section 3).
+
+Modules:
+
+- :mod:`lift3d.export.pointcloud` — :func:`extract_labelled_points` (surface or rays source, filters);
+- :mod:`lift3d.export.mesh` — density threshold, chunked density grid, isosurface, camera visibility,
+  :func:`~lift3d.export.mesh.extract_labelled_mesh`;
+- :mod:`lift3d.export.instances` — label heads at points, stable instance ids, per-instance records;
+- :mod:`lift3d.export.formats` — PCD, SemanticKITTI, ``classes.json`` / ``instances.json`` / ``metadata.json``;
+- :mod:`lift3d.export.api` — loading exports downstream (``lift3d.load_labelled_points``, ``lift3d.instances``).
+
+:func:`export_run` is what ``lift3d export`` runs. Importing this package is cheap: heavy modules (torch,
+Open3D, PyVista) load only when a function needs them.
+
+Examples
+--------
+Export a run's labelled point cloud and mesh into a folder, then read it back::
+
+    from lift3d.export import export_run
+    summary = export_run("outputs/room0/fast/2026-11-22_101500", "export", pointcloud=True, mesh=True)
+    import lift3d
+    pts = lift3d.load_labelled_points("export/points.ply")
+"""
+
+from __future__ import annotations
+
+import os
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+__all__ = ["export_run", "extract_labelled_points", "LabelledPoints", "benchmark_export", "FORMATS"]
+
+#: Point-cloud file formats ``--format`` accepts.
+FORMATS = ("ply", "pcd", "label")
+
+
+def __getattr__(name: str):
+    if name in ("extract_labelled_points", "LabelledPoints", "benchmark_export", "OrientedBox"):
+        from lift3d.export import pointcloud
+
+        return getattr(pointcloud, name)
+    raise AttributeError(f"module 'lift3d.export' has no attribute {name!r}")
+
+
+def check_writable(output_dir: str | Path) -> Path:
+    """Create ``output_dir`` if needed and prove a file can be created in it, before any work is done.
+
+    Raises
+    ------
+    InputError
+        Naming the folder when it cannot be created or written.
+    """
+    import tempfile
+
+    from lift3d.errors import InputError
+
+    out = Path(output_dir)
+    try:
+        out.mkdir(parents=True, exist_ok=True)
+        fd, probe = tempfile.mkstemp(prefix=".lift3d-write-test.", dir=out)
+        os.close(fd)
+        os.unlink(probe)
+    except OSError as exc:
+        raise InputError(out, f"output folder is not writable ({exc.strerror or exc})") from exc
+    return out
+
+
+def export_run(run: str | Path, output_dir: str | Path | None = None, *, pointcloud: bool = True, mesh: bool = False,
+               formats: tuple[str, ...] | list[str] = ("ply",), data: str | Path | None = None,
+               split_instances: bool = False, resolution: int = 256, pcd_ascii: bool = False,
+               command: str | None = None, progress: bool = False, loaded=None, scene=None,
+               **point_options: Any) -> dict[str, Any]:
+    """Export a trained run's labelled geometry into ``output_dir`` (every file written atomically).
+
+    Parameters
+    ----------
+    run : str or Path
+        Run folder.
+    output_dir : str or Path, optional
+        Destination (created); default ``<run>/export``.
+    pointcloud, mesh : bool
+        What to export.
+    formats : sequence of str
+        Point-cloud files: ``ply`` (``points.ply``), ``pcd`` (``points.pcd``), ``label``
+        (``points.label`` + ``points.bin``).
+    data : str or Path, optional
+        The scene folder, when it moved since training.
+    split_instances : bool
+        With ``mesh``: also write ``instances/<id>_<class>.ply``, one sub-mesh per instance.
+    resolution : int
+        Mesh grid cells per axis.
+    pcd_ascii : bool
+        Write ``points.pcd`` as ``DATA ascii`` instead of binary.
+    command : str, optional
+        Recorded in ``metadata.json`` (default: this process's command line).
+    loaded, scene : optional
+        An already loaded run and scene (skips loading).
+    **point_options
+        Passed to :func:`~lift3d.export.pointcloud.extract_labelled_points` (``source``, ``num_points``,
+        ``frame``, ``density_threshold``, ``min_confidence``, ``voxel_size``, ``remove_outliers``,
+        ``std_ratio``, ``obb``, ``min_points``, ``device``).
+
+    Returns
+    -------
+    dict
+        Paths written, counts, thresholds and seconds.
+    """
+    import numpy as np
+
+    from lift3d import __version__
+    from lift3d.data.ply import write_labelled_ply
+    from lift3d.errors import InputError
+    from lift3d.export import formats as fmt
+    from lift3d.export.instances import instance_records
+
+    unknown = [f for f in formats if f not in FORMATS]
+    if unknown:
+        raise InputError("--format", f"unknown format(s) {unknown} (choose from {' '.join(FORMATS)})")
+    if not pointcloud and not mesh:
+        raise InputError("lift3d export", "nothing to export: give --pointcloud and/or --mesh")
+    out = check_writable(output_dir if output_dir is not None else Path(run) / "export")
+    started = time.perf_counter()
+    if loaded is None:
+        from lift3d.train.trainer import load_run
+
+        loaded = load_run(run, point_options.get("device") or "auto")
+    if scene is None:
+        scene = loaded.scene(data)
+    frame = point_options.get("frame", "world")
+    units = "normalized scene units (world units x scale)" if frame == "normalized" else \
+        "world units of transforms.json (metres for lift3d synth scenes)"
+    classes = fmt.class_table(scene.categories, loaded.labels.semantic_ids)
+    names = {c["id"]: c["name"] for c in classes}
+    written: list[str] = []
+    summary: dict[str, Any] = {"output_dir": str(out), "files": written}
+    thresholds: dict[str, Any] = {}
+    pts = None
+    if pointcloud:
+        from lift3d.export.pointcloud import extract_labelled_points
+
+        pts = extract_labelled_points(loaded, scene, progress=progress, **point_options)
+        thresholds["points"] = pts.thresholds
+        comments = [f"lift3d {__version__} export", f"frame {pts.frame}", f"source run {loaded.run.path}"]
+        if "ply" in formats:
+            write_labelled_ply(out / "points.ply", pts.xyz, rgb=pts.rgb, semantic=pts.semantic, instance=pts.instance,
+                               confidence=pts.confidence, comments=comments)
+            written.append("points.ply")
+        if "pcd" in formats:
+            fmt.write_pcd(out / "points.pcd", pts.xyz, rgb=pts.rgb, semantic=pts.semantic, instance=pts.instance,
+                          confidence=pts.confidence, binary=not pcd_ascii)
+            written.append("points.pcd")
+        if "label" in formats:
+            fmt.write_semantickitti_label(out / "points.label", pts.semantic, pts.instance)
+            fmt.write_semantickitti_scan(out / "points.bin", pts.xyz, pts.confidence)
+            written += ["points.label", "points.bin"]
+        records = instance_records(pts.xyz, pts.semantic, pts.instance, pts.confidence, names)
+        fmt.write_instances_json(out / "instances.json", records, frame=pts.frame, units=units, source="points")
+        written.append("instances.json")
+        summary.update(points=len(pts), instances=len(records), point_stats=pts.stats)
+    if mesh:
+        from lift3d.export.mesh import extract_labelled_mesh, match_instance_ids
+
+        labelled = extract_labelled_mesh(loaded, scene, resolution=resolution,
+                                         density_threshold=point_options.get("density_threshold"), frame=frame,
+                                         min_points=point_options.get("min_points", 0), progress=progress)
+        if pts is not None:
+            match_instance_ids(labelled, pts.xyz, pts.semantic, pts.instance)
+        write_labelled_ply(out / "mesh.ply", labelled.vertices, rgb=labelled.rgb, semantic=labelled.semantic,
+                           instance=labelled.instance, confidence=labelled.confidence, faces=labelled.faces,
+                           comments=[f"lift3d {__version__} export", f"frame {labelled.frame}"])
+        written.append("mesh.ply")
+        thresholds["mesh"] = labelled.thresholds
+        summary.update(mesh_vertices=int(len(labelled.vertices)), mesh_faces=int(len(labelled.faces)))
+        if pts is None:
+            records = instance_records(labelled.vertices, labelled.semantic, labelled.instance, labelled.confidence,
+                                       names)
+            fmt.write_instances_json(out / "instances.json", records, frame=labelled.frame, units=units,
+                                     source="mesh vertices")
+            written.append("instances.json")
+            summary["instances"] = len(records)
+        if split_instances:
+            written += _write_instance_meshes(out / "instances", labelled, names)
+    fmt.write_classes_json(out / "classes.json", classes)
+    written.append("classes.json")
+    transform = pts.transform if pts is not None else labelled.transform
+    metadata = {
+        "lift3d_version": __version__,
+        "frame": frame,
+        "transform": np.asarray(transform).tolist(),
+        "transform_note": "x_world = transform @ [x_normalized, 1] (a similarity: uniform scale + translation)",
+        "units": units,
+        "thresholds": thresholds,
+        "source_run": {"path": str(Path(loaded.run.path).resolve()), "step": int(loaded.step),
+                       "scene": str(scene.root.resolve())},
+        "command": command if command is not None else " ".join([Path(sys.argv[0]).name, *sys.argv[1:]]),
+        "created": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
+        "files": sorted(written + ["metadata.json"]),
+        "options": {k: (v if isinstance(v, (int, float, str, bool, type(None))) else str(v))
+                    for k, v in point_options.items()},
+        "counts": {k: summary[k] for k in ("points", "instances", "mesh_vertices", "mesh_faces") if k in summary},
+    }
+    fmt.write_metadata_json(out / "metadata.json", metadata)
+    written.append("metadata.json")
+    summary["seconds"] = time.perf_counter() - started
+    return summary
+
+
+def _write_instance_meshes(folder: Path, labelled, names: dict[int, str]) -> list[str]:
+    """``instances/<id>_<class>.ply``: the faces whose three vertices belong to one instance."""
+    import re
+
+    import numpy as np
+
+    from lift3d.data.ply import write_labelled_ply
+
+    written = []
+    face_instance = labelled.instance[labelled.faces]
+    whole = (face_instance == face_instance[:, :1]).all(1)
+    for inst in np.unique(labelled.instance[labelled.instance > 0]):
+        faces = labelled.faces[whole & (face_instance[:, 0] == inst)]
+        if len(faces) == 0:
+            continue
+        used = np.unique(faces)
+        remap = np.full(len(labelled.vertices), -1, np.int64)
+        remap[used] = np.arange(len(used))
+        cls = int(np.bincount(labelled.semantic[used]).argmax())
+        safe = re.sub(r"[^A-Za-z0-9_.-]+", "-", names.get(cls, f"class_{cls}"))
+        name = f"{int(inst)}_{safe}.ply"
+        write_labelled_ply(folder / name, labelled.vertices[used], rgb=labelled.rgb[used],
+                           semantic=labelled.semantic[used], instance=labelled.instance[used],
+                           confidence=labelled.confidence[used], faces=remap[faces])
+        written.append(f"instances/{name}")
+    return written

@@ -1,0 +1,625 @@
+"""Geometry of a trained field: density threshold, chunked density grid, isosurface, camera visibility,
+and the labelled mesh (``lift3d export --mesh``).
+
+How the surface is found
+------------------------
+*Threshold.* The surface is the isosurface ``σ = τ`` of the density. :func:`choose_density_threshold`
+picks ``τ`` so that the isosurface agrees with what volume rendering says the training cameras see: along
+2048 random training-camera rays the density is sampled at 256 uniform steps; per ray, the *rendered
+surface* is where the accumulated opacity reaches 0.5 (the median depth), and for each candidate ``τ`` the
+*isosurface hit* is the first sample with ``σ ≥ τ``. The chosen ``τ`` minimises the mean distance between
+the two (in samples, capped at 8), taking the geometric middle of the near-optimal range (within 0.25
+sample of the best) so that the choice does not hinge on one candidate. Too low a ``τ`` stops on haze in
+front of surfaces, too high a ``τ`` passes through thin or soft surfaces; both move the hit away from the
+rendered surface. When fewer than 16 rays become opaque the fallback is the density at which one voxel step
+reaches opacity 0.5: ``τ = ln 2 / voxel``. ``--density-threshold`` overrides both.
+
+*Grid.* Density is evaluated on a lattice of ``resolution³`` cells over the field's domain (the box
+``[-1, 1]³`` for bounded scenes, contracted space ``[-2, 2]³`` for unbounded ones) in two passes, so that
+only occupied cells are queried (PERFORMANCE.md): a coarse lattice of at most 64³ cells, then the fine
+lattice only inside coarse cells whose corner densities come within a factor 4 of ``τ`` (or straddle it),
+dilated by one coarse cell. Other fine nodes take the trilinear upsampling of the coarse lattice, which
+there lies entirely below ``τ/4`` or above ``4τ`` and so adds no surface. Bounded fields are padded with
+one layer of zero density (their value outside the box), so surfaces cut by the box are closed. VTK's
+flying edges (PyVista) contours the result; its triangles are consistently oriented, with
+``(v1 - v0) × (v2 - v0)`` pointing to lower density (outwards).
+
+*Unbounded scenes* are contoured in contracted space and mapped back with the inverse contraction; far
+background beyond :data:`UNBOUNDED_MAX_RADIUS` (normalised units, ∞-norm: 4 × the foreground box) is
+skipped: it is neither refined nor exported.
+
+*Visibility.* :class:`CameraVisibility` decides which training camera sees a point of the isosurface: the
+point projects inside that camera's image, lies beyond its near plane, and the segment from the camera
+centre to the point crosses no part of the isosurface (one exact Embree occlusion ray per point and
+camera, via Open3D's ``RaycastingScene``; occluders within one grid voxel of the point are its own
+surface; a camera behind the surface at the point is skipped without a ray). Because ``τ`` was fitted to
+the rendered median depth, this is the test "in front of the rendered depth of that camera", without
+rendering every training view and without the pixel-size tolerance a depth map would need (which would let
+the underside of a thin table top through).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field, replace
+from typing import Any
+
+import numpy as np
+
+#: Far background beyond this ∞-norm radius (normalised units; the foreground box is radius 1) is skipped
+#: in unbounded scenes: contracted space squeezes it into a thin shell where the isosurface is unreliable.
+UNBOUNDED_MAX_RADIUS = 4.0
+#: Coarse lattice cells per axis of the first (occupancy) pass.
+COARSE_CELLS = 64
+#: A coarse cell is refined when its corner densities are not all below τ/F or all above F·τ.
+REFINE_FACTOR = 4.0
+
+
+# ------------------------------------------------------------------------------------------ contraction
+def uncontract(g: np.ndarray, kind: str) -> np.ndarray:
+    """Inverse of :func:`lift3d.field.encodings.contract`: contracted points → normalised points.
+
+    Points on or beyond the contracted boundary (radius 2) map to ``inf``.
+
+    Examples
+    --------
+    >>> uncontract(np.array([[0.5, 0.0, 0.0], [1.75, 0.0, 0.0]]), "linf").tolist()
+    [[0.5, 0.0, 0.0], [4.0, 0.0, 0.0]]
+    """
+    g = np.asarray(g, np.float64)
+    if kind == "none":
+        return g
+    if kind == "linf":
+        n = np.abs(g).max(-1, keepdims=True)
+    elif kind == "l2":
+        n = np.linalg.norm(g, axis=-1, keepdims=True)
+    else:
+        raise ValueError(f"unknown contraction {kind!r}")
+    with np.errstate(divide="ignore", invalid="ignore"):
+        # contract: c = x (2 - 1/m) / m with m = |x|  ⇒  |c| = 2 - 1/m  ⇒  m = 1 / (2 - |c|),  x = c m / |c|.
+        far = np.where(n >= 2.0, np.inf, 1.0 / (2.0 - n)) / np.maximum(n, 1e-12)
+        scale = np.where(n <= 1.0, 1.0, far)
+        return g * scale
+
+
+def contracted_radius(radius: float, kind: str) -> float:
+    """Norm of the contracted image of a point at normalised norm ``radius`` (``2 - 1/r`` beyond 1)."""
+    if kind == "none" or radius <= 1.0:
+        return float(radius)
+    return 2.0 - 1.0 / radius
+
+
+# ------------------------------------------------------------------------------------------ field access
+def field_density(model, x: np.ndarray, chunk: int = 65536):
+    """Density ``σ`` (float32 numpy) at normalised points, in chunks, without gradients."""
+    import torch
+
+    device = next(model.parameters()).device
+    x = np.asarray(x, np.float32)
+    out = np.empty(len(x), np.float32)
+    with torch.no_grad():
+        for s in range(0, len(x), chunk):
+            xs = torch.from_numpy(np.ascontiguousarray(x[s:s + chunk])).to(device)
+            out[s:s + len(xs)] = model.field.geometry(xs)[0].cpu().numpy()
+    return out
+
+
+def contraction_of(model) -> str:
+    """``none`` for bounded fields, else the contraction the field uses (``linf``/``l2``)."""
+    return getattr(model.field.space, "contraction", "none" if model.bounded else "linf")
+
+
+def train_frames(scene) -> np.ndarray:
+    """Training frame indices (every frame when the scene has no train split)."""
+    frames = np.asarray(scene.split("train"), np.int64)
+    return frames if len(frames) else np.arange(len(scene))
+
+
+# ------------------------------------------------------------------------------------------ threshold
+def choose_density_threshold(loaded, scene, *, n_rays: int = 2048, n_samples: int = 256, seed: int = 0,
+                             voxel: float | None = None) -> tuple[float, dict[str, Any]]:
+    """The density ``τ`` whose isosurface best matches the rendered surface of training rays.
+
+    See the module docstring for the rule. Deterministic for a given ``seed``.
+
+    Parameters
+    ----------
+    loaded : lift3d.train.trainer.LoadedRun
+    scene : lift3d.data.scene.Scene
+    n_rays, n_samples : int
+        Training rays and uniform samples per ray.
+    voxel : float, optional
+        Grid voxel (normalised units) for the fallback rule ``ln 2 / voxel``; default the field's finest grid
+        voxel.
+
+    Returns
+    -------
+    tau : float
+    info : dict
+        ``rule``, ``rays_used``, ``mean_error_samples`` and the fallback value, for ``metadata.json``.
+    """
+    import torch
+
+    from lift3d.render.samplers import ray_aabb, spacing_fn, spacing_fn_inv
+    from lift3d.render.volume import interval_midpoints, render_weights
+
+    model = loaded.model
+    extent = 2.0 if not model.bounded else 1.0
+    if voxel is None:
+        voxel = 2.0 * extent / max(int(loaded.cfg.field.grid_max_resolution), 1)
+    fallback = math.log(2.0) / voxel
+    frames = train_frames(scene)
+    rays = loaded.rays(scene)
+    rng = np.random.default_rng(seed)
+    frame = frames[rng.integers(0, len(frames), n_rays)]
+    w = scene.cameras.width[frame].astype(np.float64)
+    h = scene.cameras.height[frame].astype(np.float64)
+    # Continuous pixel positions over the whole image (RayGenerator adds the +0.5 pixel-centre offset).
+    u = torch.from_numpy(rng.random(n_rays) * w - 0.5)
+    v = torch.from_numpy(rng.random(n_rays) * h - 0.5)
+    origins, dirs, _ = rays.rays(torch.from_numpy(frame), u, v)
+    origins, dirs = origins.cpu(), dirs.cpu()
+    sampling = loaded.cfg.sampling
+    steps = torch.linspace(0.0, 1.0, n_samples + 1)
+    if model.bounded:
+        near, far = ray_aabb(origins, dirs)
+        near = near.clamp_min(sampling.near_plane)
+        far = torch.maximum(far, near)
+        edges = near[:, None] + (far - near)[:, None] * steps
+    else:
+        s0 = spacing_fn(torch.tensor(sampling.near_plane), "lindisp")
+        s1 = spacing_fn(torch.tensor(sampling.far_plane), "lindisp")
+        edges = spacing_fn_inv((s0 + (s1 - s0) * steps).expand(n_rays, -1), "lindisp")
+    t_mid, deltas = interval_midpoints(edges)
+    x = (origins[:, None, :] + dirs[:, None, :] * t_mid[..., None]).reshape(-1, 3).numpy()
+    sigma = torch.from_numpy(field_density(model, x)).view(n_rays, n_samples)
+    weights, _ = render_weights(sigma, deltas)
+    opacity = weights.cumsum(-1)
+    opaque = opacity[:, -1] >= 0.5
+    info: dict[str, Any] = {"fallback_voxel_rule": fallback, "rays": n_rays, "samples_per_ray": n_samples,
+                            "rays_used": int(opaque.sum())}
+    if int(opaque.sum()) < 16:
+        info.update(rule="voxel opacity 0.5 (ln 2 / voxel): too few opaque training rays to fit", value=fallback)
+        return float(fallback), info
+    sigma, opacity = sigma[opaque], opacity[opaque]
+    median_index = (opacity >= 0.5).to(torch.int8).argmax(-1)  # first sample where opacity reaches 0.5
+    running_max = torch.cummax(sigma, -1).values.contiguous()
+    positive = sigma[sigma > 0]
+    lo = max(float(torch.quantile(positive[:: max(1, len(positive) // 100000)], 0.01)), 1e-6)
+    hi = max(float(running_max[:, -1].max()), lo * 1.01)
+    candidates = torch.logspace(math.log10(lo), math.log10(hi), 96)
+    # First sample with σ ≥ τ = first index where the running maximum reaches τ (it is sorted per ray).
+    first_hit = torch.searchsorted(running_max, candidates.expand(len(sigma), -1).contiguous())
+    cap = 8.0
+    error = (first_hit - median_index[:, None]).abs().float().clamp(max=cap)
+    cost = error.mean(0)
+    best = float(cost.min())
+    near_optimal = candidates[cost <= best + 0.25]
+    tau = float(torch.exp(torch.log(near_optimal).mean()))
+    info.update(rule="isosurface first hit matches the rendered median depth (opacity 0.5) of training rays",
+                value=tau, mean_error_samples=best, near_optimal_range=[float(near_optimal.min()),
+                                                                         float(near_optimal.max())])
+    return tau, info
+
+
+# ------------------------------------------------------------------------------------------ isosurface
+@dataclass
+class FieldSurface:
+    """The isosurface ``σ = threshold`` of a field."""
+
+    grid_vertices: np.ndarray  # [V, 3] float32 in grid space (contracted for unbounded scenes)
+    vertices: np.ndarray  # [V, 3] float32 normalised scene coordinates
+    faces: np.ndarray  # [M, 3] int64
+    threshold: float
+    resolution: int  # cells per axis
+    extent: float  # the grid covers [-extent, extent]^3
+    contraction: str
+    stats: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def voxel(self) -> float:
+        """Cell side in grid units."""
+        return 2.0 * self.extent / self.resolution
+
+
+def _lattice_coords(flat_index: np.ndarray, nodes: int, extent: float, cells: int) -> np.ndarray:
+    """Grid-space coordinates of lattice nodes given flat C-order indices over ``[i, j, k]``."""
+    i, rem = np.divmod(flat_index, nodes * nodes)
+    j, k = np.divmod(rem, nodes)
+    step = 2.0 * extent / cells
+    return np.stack([i, j, k], -1) * step - extent
+
+
+def _grid_to_normalized(g: np.ndarray, contraction: str) -> np.ndarray:
+    """Grid coordinates → points to query. The contracted boundary itself (infinitely far) is pulled just
+    inside so that every query is finite."""
+    if contraction == "none":
+        return g
+    g = np.clip(g, -1.999, 1.999)
+    return uncontract(g, contraction)
+
+
+def field_isosurface(model, threshold: float, resolution: int = 256, *, max_radius: float | None = None,
+                     progress: bool = False) -> FieldSurface:
+    """Contour the density of ``model`` at ``threshold`` on a chunked grid (see the module docstring).
+
+    Parameters
+    ----------
+    model : PanopticModel
+    threshold : float
+        Density ``τ``.
+    resolution : int
+        Fine cells per axis; rounded up to a multiple of ``ceil(resolution / 64)``.
+    max_radius : float, optional
+        Unbounded scenes: ∞-norm radius (normalised units) beyond which nothing is refined or returned
+        (default :data:`UNBOUNDED_MAX_RADIUS`). Ignored for bounded scenes.
+    progress : bool
+
+    Returns
+    -------
+    FieldSurface
+
+    Examples
+    --------
+    >>> from lift3d.export.instances import _tiny_model
+    >>> surf = field_isosurface(_tiny_model(), threshold=1e9, resolution=16)  # nothing that dense
+    >>> surf.faces.shape, surf.resolution
+    ((0, 3), 16)
+    """
+    import pyvista as pv
+    import torch
+    import torch.nn.functional as F
+
+    from lift3d.utils.progress import progress_bar
+
+    contraction = contraction_of(model)
+    extent = 1.0 if contraction == "none" else 2.0
+    factor = max(1, math.ceil(resolution / COARSE_CELLS))
+    coarse_cells = math.ceil(resolution / factor)
+    cells = coarse_cells * factor
+    tau = float(threshold)
+
+    # Pass 1: coarse lattice everywhere.
+    cn = coarse_cells + 1
+    coarse_idx = np.arange(cn**3, dtype=np.int64)
+    coarse_sigma = field_density(model, _grid_to_normalized(_lattice_coords(coarse_idx, cn, extent, coarse_cells),
+                                                            contraction)).reshape(cn, cn, cn)
+    cs = torch.from_numpy(coarse_sigma)[None, None]
+    cell_max = F.max_pool3d(cs, 2, stride=1)[0, 0]
+    cell_min = -F.max_pool3d(-cs, 2, stride=1)[0, 0]
+    active = (cell_min < tau * REFINE_FACTOR) & (cell_max > tau / REFINE_FACTOR)
+    active = F.max_pool3d(active[None, None].float(), 3, stride=1, padding=1)[0, 0] > 0
+    limit = None
+    if contraction != "none":
+        limit = contracted_radius(UNBOUNDED_MAX_RADIUS if max_radius is None else max_radius, contraction)
+        centres = (torch.arange(coarse_cells, dtype=torch.float64) + 0.5) * (2 * extent / coarse_cells) - extent
+        cx, cy, cz = torch.meshgrid(centres, centres, centres, indexing="ij")
+        radius = torch.stack([cx.abs(), cy.abs(), cz.abs()]).amax(0)
+        active &= radius <= limit + 2 * extent / coarse_cells
+    active_np = active.numpy()
+
+    # Pass 2: fine nodes of active coarse cells, exact; everything else from the coarse lattice.
+    n = cells + 1
+    fine_cells = np.repeat(np.repeat(np.repeat(active_np, factor, 0), factor, 1), factor, 2)
+    node_mask = np.zeros((n, n, n), bool)
+    for di in (0, 1):
+        for dj in (0, 1):
+            for dk in (0, 1):
+                node_mask[di:di + cells, dj:dj + cells, dk:dk + cells] |= fine_cells
+    del fine_cells
+    volume = F.interpolate(cs, size=(n, n, n), mode="trilinear", align_corners=True)[0, 0].numpy()
+    flat = volume.reshape(-1)
+    todo = np.flatnonzero(node_mask.reshape(-1))
+    del node_mask
+    chunk = 1 << 18
+    for s in progress_bar(range(0, len(todo), chunk), desc="density grid", disable=not progress, leave=False,
+                          unit="chunk"):
+        idx = todo[s:s + chunk]
+        flat[idx] = field_density(model, _grid_to_normalized(_lattice_coords(idx, n, extent, cells), contraction))
+
+    step = 2.0 * extent / cells
+    origin = -extent
+    if contraction == "none":
+        # A bounded field has zero density outside its box: one layer of zeros closes surfaces the box cuts
+        # (otherwise a cut-open slab would show its inside to cameras looking through the cut).
+        volume = np.pad(volume, 1)
+        origin -= step
+    dims = volume.shape
+    image = pv.ImageData(dimensions=dims, spacing=(step, step, step), origin=(origin, origin, origin))
+    image.point_data["density"] = volume.ravel(order="F")  # VTK wants x fastest
+    del volume, flat
+    if tau >= float(image.point_data["density"].max()):
+        surface = None
+    else:
+        surface = image.contour([tau], scalars="density", method="flying_edges", compute_scalars=False)
+    if surface is None or surface.n_points == 0:
+        grid_vertices, faces = np.zeros((0, 3), np.float32), np.zeros((0, 3), np.int64)
+    else:
+        grid_vertices = np.asarray(surface.points, np.float32)
+        faces = np.asarray(surface.regular_faces, np.int64)
+    stats = {"resolution": cells, "coarse_cells": coarse_cells, "refined_nodes": int(len(todo)),
+             "refined_fraction": float(len(todo)) / n**3, "faces_contoured": int(len(faces))}
+    if limit is not None and len(faces):
+        inside = np.abs(grid_vertices).max(-1) <= limit
+        faces = faces[inside[faces].all(-1)]
+        grid_vertices, faces = _compact(grid_vertices, faces)
+        stats["max_radius"] = UNBOUNDED_MAX_RADIUS if max_radius is None else float(max_radius)
+    vertices = _grid_to_normalized(grid_vertices.astype(np.float64), contraction).astype(np.float32)
+    stats["faces"] = int(len(faces))
+    stats["vertices"] = int(len(vertices))
+    return FieldSurface(grid_vertices, vertices, faces, tau, cells, extent, contraction, stats)
+
+
+def _compact(vertices: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Drop vertices no face uses and renumber the faces."""
+    used = np.zeros(len(vertices), bool)
+    used[faces.reshape(-1)] = True
+    new_index = np.cumsum(used) - 1
+    return vertices[used], new_index[faces]
+
+
+# ------------------------------------------------------------------------------------------ visibility
+class CameraVisibility:
+    """Which training camera sees a point (see the module docstring).
+
+    Parameters
+    ----------
+    cameras : lift3d.data.cameras.Cameras
+        Cameras with poses in *normalised* coordinates.
+    frames : np.ndarray
+        Indices of the cameras to use, in the order they are tried.
+    vertices, faces : np.ndarray
+        The occluding surface (normalised coordinates).
+    near : float
+        Near plane (normalised units).
+    tolerance : float
+        Occluders closer than this to the point itself are ignored (the point's own surface), normalised
+        units; about one grid voxel.
+    """
+
+    def __init__(self, cameras, frames, vertices: np.ndarray, faces: np.ndarray, *, near: float, tolerance: float):
+        import open3d as o3d
+
+        self.cameras, self.frames = cameras, np.asarray(frames, np.int64)
+        self.near, self.tolerance = float(near), float(tolerance)
+        self.centers = cameras.centers
+        self.scene = o3d.t.geometry.RaycastingScene()
+        self.empty = len(faces) == 0
+        if not self.empty:
+            self.scene.add_triangles(o3d.core.Tensor(np.ascontiguousarray(vertices, np.float32)),
+                                     o3d.core.Tensor(np.ascontiguousarray(faces, np.uint32)))
+
+    def unoccluded(self, origin: np.ndarray, points: np.ndarray) -> np.ndarray:
+        """``[N]`` bool: nothing of the surface lies between ``origin`` and each point (minus the tolerance).
+
+        One Embree occlusion query per point: the ray direction is the segment to the point shortened by the
+        tolerance, so ``tfar = 1`` ends the search just before the point.
+        """
+        import open3d as o3d
+
+        if self.empty or len(points) == 0:
+            return np.ones(len(points), bool)
+        seg = np.asarray(points, np.float32) - np.asarray(origin, np.float32)
+        dist = np.sqrt(np.einsum("ij,ij->i", seg, seg))[:, None]
+        seg *= np.clip(dist - self.tolerance, 0.0, None) / np.maximum(dist, 1e-12)
+        rays = np.empty((len(seg), 6), np.float32)
+        rays[:, :3] = origin
+        rays[:, 3:] = seg
+        return ~self.scene.test_occlusions(o3d.core.Tensor(rays), tnear=0.0, tfar=1.0).numpy().astype(bool)
+
+    def first_seen_by(self, points: np.ndarray, normals: np.ndarray | None = None) -> np.ndarray:
+        """Index of the first camera (in ``frames`` order) that sees each point, or -1.
+
+        Cameras are tried one after the other on the points no camera has claimed yet, so most points cost
+        one or two projections and occlusion rays.
+
+        Parameters
+        ----------
+        points : np.ndarray
+            ``[N, 3]`` points on the surface (normalised coordinates).
+        normals : np.ndarray, optional
+            ``[N, 3]`` outward surface normals (towards lower density). A camera behind the surface at a
+            point cannot see it (its ray would have entered the solid earlier), so such pairs skip the
+            occlusion ray.
+        """
+        # The unclaimed points are kept compacted (float32 copies shrink as cameras claim points), so each
+        # camera costs time proportional to what is left.
+        seen_by = np.full(len(points), -1, np.int64)
+        todo = np.arange(len(points))
+        p = np.asarray(points, np.float32)
+        n = None if normals is None else np.asarray(normals, np.float32)
+        for i in self.frames:
+            if len(todo) == 0:
+                break
+            i = int(i)
+            in_view = self._in_view(i, p)
+            if n is not None:
+                in_view &= np.einsum("ij,ij->i", n, self.centers[i].astype(np.float32) - p) >= 0
+            cand = np.flatnonzero(in_view)
+            ok = cand[self.unoccluded(self.centers[i], p[cand])]
+            if len(ok) == 0:
+                continue
+            seen_by[todo[ok]] = i
+            rest = np.ones(len(todo), bool)
+            rest[ok] = False
+            todo, p = todo[rest], p[rest]
+            if n is not None:
+                n = n[rest]
+        return seen_by
+
+    def _in_view(self, i: int, p: np.ndarray) -> np.ndarray:
+        """``[N]`` bool: inside camera ``i``'s image and beyond its near plane."""
+        cams = self.cameras
+        if cams.has_distortion:
+            uv, z = cams.project(i, p)
+        else:  # pinhole: the same projection, without a matrix inverse and a copy per call
+            c2w = cams.c2w_opencv[i].astype(p.dtype)
+            pc = (p - c2w[:3, 3]) @ c2w[:3, :3]
+            z = pc[:, 2]
+            with np.errstate(divide="ignore", invalid="ignore"):
+                uv = np.stack([cams.fx[i] * pc[:, 0] / z + cams.cx[i], cams.fy[i] * pc[:, 1] / z + cams.cy[i]], -1)
+        w, h = float(cams.width[i]), float(cams.height[i])
+        with np.errstate(invalid="ignore"):
+            return (z > self.near) & (uv[:, 0] >= 0) & (uv[:, 0] < w) & (uv[:, 1] >= 0) & (uv[:, 1] < h)
+
+
+def normalized_cameras(loaded, scene):
+    """The scene's cameras with poses expressed in the run's normalised coordinates."""
+    return replace(scene.cameras, c2w=loaded.norm.c2w_normalized(scene.cameras.c2w))
+
+
+def view_directions(points: np.ndarray, camera_centers: np.ndarray) -> np.ndarray:
+    """Unit directions from camera centres to points (``[N, 3]`` each) as float32."""
+    d = np.asarray(points, np.float64) - camera_centers
+    return (d / np.maximum(np.linalg.norm(d, axis=1, keepdims=True), 1e-12)).astype(np.float32)
+
+
+# ------------------------------------------------------------------------------------------ labelled mesh
+@dataclass
+class LabelledMesh:
+    """A triangle mesh with per-vertex labels, in the export frame."""
+
+    vertices: np.ndarray  # [V, 3] float32
+    faces: np.ndarray  # [M, 3] int64
+    rgb: np.ndarray  # [V, 3] uint8
+    semantic: np.ndarray  # [V] int32
+    instance: np.ndarray  # [V] int32
+    confidence: np.ndarray  # [V] float32
+    frame: str
+    transform: np.ndarray  # 4x4 world <- normalised
+    thresholds: dict[str, Any]
+    stats: dict[str, Any] = field(default_factory=dict)
+
+
+def extract_labelled_mesh(loaded, scene, *, resolution: int = 256, density_threshold: float | None = None,
+                          frame: str = "world", min_points: int = 0, device=None,
+                          progress: bool = False) -> LabelledMesh:
+    """The density isosurface with labels queried at every vertex.
+
+    Vertex colour is the colour head seen from the nearest training camera. Instances follow
+    :func:`lift3d.export.instances.assign_instances` on the vertices (link radius two grid cells), so ids
+    are contiguous and ordered by vertex count; :func:`match_instance_ids` re-numbers them to agree with a
+    point cloud exported from the same run.
+
+    Parameters
+    ----------
+    loaded : LoadedRun
+    scene : Scene
+    resolution : int
+        Grid cells per axis (default 256).
+    density_threshold : float, optional
+        Overrides :func:`choose_density_threshold`.
+    frame : {"world", "normalized"}
+    min_points : int
+        Instance fragments with fewer vertices are relabelled (see ``assign_instances``).
+    device : str, optional
+        Move the model to this device first.
+    """
+    from scipy.spatial import cKDTree
+
+    from lift3d.export.instances import assign_instances, query_point_labels
+
+    _check_frame(frame)
+    if device is not None:
+        from lift3d.utils.device import resolve_device
+
+        loaded.model.to(resolve_device(device))
+    model = loaded.model
+    if density_threshold is None:
+        tau, info = choose_density_threshold(loaded, scene)
+    else:
+        tau = float(density_threshold)
+        info = {"rule": "set by the user (--density-threshold)", "value": tau}
+    surface = field_isosurface(model, tau, resolution, progress=progress)
+    cams = normalized_cameras(loaded, scene)
+    centers = cams.centers[train_frames(scene)]
+    dirs = np.zeros((0, 3), np.float32)
+    if len(surface.vertices):
+        _, nearest = cKDTree(centers).query(surface.vertices.astype(np.float64), workers=-1)
+        dirs = view_directions(surface.vertices, centers[nearest])
+    labels = query_point_labels(model, surface.vertices, dirs, progress=progress, desc="label vertices")
+    transform = world_from_normalized(loaded.norm)
+    xyz = to_frame(surface.vertices, transform, frame)
+    grid_step_out = _length_to_frame(_normalized_voxel(surface), loaded.norm, frame)
+    assignment = assign_instances(xyz, labels.semantic, labels.channel, link_radius=2.0 * grid_step_out,
+                                  min_points=min_points)
+    faces = surface.faces
+    keep = assignment.keep
+    if not keep.all():
+        faces = faces[keep[faces].all(-1)]
+        remap = np.cumsum(keep) - 1
+        faces = remap[faces]
+    thresholds = {"density": tau, "density_rule": info, "resolution": surface.resolution}
+    return LabelledMesh(
+        vertices=xyz[keep].astype(np.float32), faces=faces.astype(np.int64), rgb=labels.rgb[keep],
+        semantic=assignment.semantic[keep], instance=assignment.instance[keep],
+        confidence=labels.confidence[keep], frame=frame, transform=transform, thresholds=thresholds,
+        stats={**surface.stats, "instances": assignment.stats},
+    )
+
+
+def match_instance_ids(mesh: LabelledMesh, xyz: np.ndarray, semantic: np.ndarray, instance: np.ndarray) -> None:
+    """Re-number mesh instances (in place) to the point-cloud instance they overlap most.
+
+    Every mesh vertex votes for the instance of its nearest point when that point has the same class; a
+    mesh instance takes the id with most votes if no other mesh instance took it already, else (and when it
+    has no votes) a new id after the point cloud's largest.
+    """
+    from scipy.spatial import cKDTree
+
+    if not len(mesh.vertices) or not len(xyz) or mesh.instance.max(initial=0) == 0:
+        return
+    _, nn = cKDTree(np.asarray(xyz, np.float64)).query(mesh.vertices.astype(np.float64), workers=-1)
+    vote = np.where(semantic[nn] == mesh.semantic, instance[nn], 0)
+    mesh_ids = np.unique(mesh.instance[mesh.instance > 0])
+    sizes = np.array([(mesh.instance == m).sum() for m in mesh_ids])
+    taken: set[int] = set()
+    next_id = int(np.max(instance, initial=0)) + 1
+    new_of: dict[int, int] = {}
+    for m in mesh_ids[np.argsort(-sizes, kind="stable")]:  # larger mesh instances choose first
+        votes = vote[(mesh.instance == m) & (vote > 0)]
+        choice = 0
+        if len(votes):
+            ids, counts = np.unique(votes, return_counts=True)
+            for cand in ids[np.argsort(-counts, kind="stable")]:
+                if int(cand) not in taken:
+                    choice = int(cand)
+                    break
+        if choice == 0:
+            choice, next_id = next_id, next_id + 1
+        taken.add(choice)
+        new_of[int(m)] = choice
+    lut = np.zeros(int(mesh.instance.max()) + 1, np.int32)
+    for m, c in new_of.items():
+        lut[m] = c
+    mesh.instance = lut[mesh.instance]
+
+
+# ------------------------------------------------------------------------------------------ frames
+def world_from_normalized(norm) -> np.ndarray:
+    """4×4 matrix taking normalised coordinates to world coordinates (inverse of ``norm.matrix``)."""
+    return np.linalg.inv(norm.matrix)
+
+
+def to_frame(x_normalized: np.ndarray, transform: np.ndarray, frame: str) -> np.ndarray:
+    """Normalised points → the export frame (``world`` applies ``transform``; ``normalized`` keeps them)."""
+    x = np.asarray(x_normalized, np.float64)
+    if frame == "normalized":
+        return x
+    return x @ transform[:3, :3].T + transform[:3, 3]
+
+
+def _length_to_frame(length_normalized: float, norm, frame: str) -> float:
+    return float(length_normalized) if frame == "normalized" else float(length_normalized) / float(norm.scale)
+
+
+def _normalized_voxel(surface: FieldSurface) -> float:
+    """Grid cell size in normalised units near the foreground (contraction is the identity there)."""
+    return surface.voxel
+
+
+def _check_frame(frame: str) -> None:
+    from lift3d.errors import InputError
+
+    if frame not in ("world", "normalized"):
+        raise InputError("--frame", f"unknown frame {frame!r} (world or normalized)")

@@ -1,0 +1,445 @@
+"""Labelled point clouds from a trained panoptic field (``lift3d export --pointcloud``).
+
+Two sources of 3D points, both labelled by running the field's semantic and instance heads *at the points*
+(once per point, in chunks; no rays are rendered for them):
+
+``surface`` (default)
+    Points sampled uniformly (by area) on the density isosurface of the field (threshold and grid: see
+    :mod:`lift3d.export.mesh`), keeping only surface that at least one training camera sees: in its
+    frustum, in front of it, and not hidden behind the surface that camera sees. The colour head is
+    evaluated along the direction from that camera. The isosurface grid has the resolution of the field's
+    finest grid (at least 128, at most 256 cells per axis): the density cannot change faster than that.
+    Unbounded scenes are sampled in contracted space (so the foreground is dense and the background
+    sparse, as pixels see it) and written in world coordinates; far background beyond
+    :data:`~lift3d.export.mesh.UNBOUNDED_MAX_RADIUS` is skipped.
+``rays``
+    nerfstudio's way: render expected depth for random training-camera rays (continuous pixel positions),
+    back-project, keep rays whose opacity exceeds 0.5. Colour is the rendered colour. Slower (every point
+    costs a rendered ray), and points follow the camera sampling rather than the surface.
+
+``num_points`` is the number of points drawn *before* the optional filters, applied in this order:
+``min_confidence`` → frame conversion → ``obb`` crop → statistical outlier removal (Open3D) → voxel
+down-sampling with majority-vote labels → instance ids (:func:`lift3d.export.instances.assign_instances`:
+connected components of one (class, channel), fragments under ``min_points`` relabelled to their
+surroundings or dropped when isolated, contiguous ids ordered by size then position).
+
+Examples
+--------
+>>> import numpy as np
+>>> box = OrientedBox.from_params(center=(0, 0, 0), rotation=(0, 0, np.pi / 4), scale=(2, 1, 1))
+>>> box.contains(np.array([[0.6, 0.6, 0.0], [0.6, -0.6, 0.0]])).tolist()
+[True, False]
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from lift3d.errors import InputError
+
+#: Rays source: keep rays whose accumulated opacity exceeds this (nerfstudio's rule).
+RAY_OPACITY_THRESHOLD = 0.5
+#: Statistical outlier removal: neighbours per point (nerfstudio and Open3D's tutorial use 20).
+OUTLIER_NEIGHBOURS = 20
+
+
+# ------------------------------------------------------------------------------------------ results
+@dataclass
+class LabelledPoints:
+    """A labelled point cloud in the export frame.
+
+    Attributes
+    ----------
+    xyz : np.ndarray
+        ``[N, 3]`` float32 positions (world units unless ``frame == "normalized"``).
+    rgb : np.ndarray
+        ``[N, 3]`` uint8 colours.
+    semantic : np.ndarray
+        ``[N]`` int32 category ids (never 0 = void).
+    instance : np.ndarray
+        ``[N]`` int32 instance ids, contiguous ``1..K`` on thing classes, 0 on stuff.
+    confidence : np.ndarray
+        ``[N]`` float32 probability of the chosen class.
+    frame : str
+        ``world`` (the input poses' frame) or ``normalized`` (the field's coordinates).
+    transform : np.ndarray
+        ``4×4`` world ← normalised (``x_world = transform @ [x_normalized, 1]``).
+    thresholds : dict
+        Every threshold the export used (density, opacity, confidence, visibility tolerance, link radius...).
+    stats : dict
+        Counts and timings of each stage.
+    """
+
+    xyz: np.ndarray
+    rgb: np.ndarray
+    semantic: np.ndarray
+    instance: np.ndarray
+    confidence: np.ndarray
+    frame: str
+    transform: np.ndarray
+    thresholds: dict[str, Any]
+    stats: dict[str, Any] = field(default_factory=dict)
+
+    def __len__(self) -> int:
+        return len(self.xyz)
+
+
+@dataclass
+class OrientedBox:
+    """A crop box: ``center``, rotation matrix ``R`` (box axes as columns) and full side lengths ``scale``.
+
+    nerfstudio's ``--obb-center/--obb-rotation/--obb-scale`` convention: the rotation is given as roll,
+    pitch, yaw in radians about x, y, z, applied in that order (``R = Rz(yaw) Ry(pitch) Rx(roll)``).
+    """
+
+    center: np.ndarray
+    R: np.ndarray
+    scale: np.ndarray
+
+    @classmethod
+    def from_params(cls, center=(0.0, 0.0, 0.0), rotation=(0.0, 0.0, 0.0), scale=(2.0, 2.0, 2.0)) -> "OrientedBox":
+        from scipy.spatial.transform import Rotation
+
+        scale = np.asarray(scale, np.float64)
+        if scale.shape != (3,) or not np.all(scale > 0):
+            raise InputError("--obb-scale", f"needs three positive side lengths, got {np.asarray(scale).tolist()}")
+        rot = Rotation.from_euler("xyz", np.asarray(rotation, np.float64)).as_matrix()
+        return cls(np.asarray(center, np.float64), rot, scale)
+
+    @classmethod
+    def coerce(cls, obb) -> "OrientedBox":
+        """Accept an :class:`OrientedBox`, an Open3D ``OrientedBoundingBox``, or a dict with ``center``,
+        ``rotation`` (roll, pitch, yaw) and ``scale``."""
+        if isinstance(obb, cls):
+            return obb
+        if isinstance(obb, dict):
+            return cls.from_params(obb.get("center", (0, 0, 0)), obb.get("rotation", (0, 0, 0)),
+                                   obb.get("scale", (2, 2, 2)))
+        if hasattr(obb, "R") and hasattr(obb, "extent") and hasattr(obb, "center"):
+            return cls(np.asarray(obb.center, np.float64), np.asarray(obb.R, np.float64),
+                       np.asarray(obb.extent, np.float64))
+        raise TypeError(f"obb: expected OrientedBox, dict or open3d OrientedBoundingBox, got {type(obb).__name__}")
+
+    def contains(self, xyz: np.ndarray) -> np.ndarray:
+        """``[N]`` bool: points inside (or on) the box."""
+        local = (np.asarray(xyz, np.float64) - self.center) @ self.R
+        return np.all(np.abs(local) <= self.scale / 2.0 + 1e-12, axis=1)
+
+
+# ------------------------------------------------------------------------------------------ main entry
+def extract_labelled_points(loaded, scene, *, source: str = "surface", num_points: int = 1_000_000,
+                            frame: str = "world", density_threshold: float | None = None,
+                            min_confidence: float = 0.0, voxel_size: float = 0.0, remove_outliers: bool = False,
+                            std_ratio: float = 2.0, obb=None, min_points: int = 0, device=None,
+                            progress: bool = False) -> LabelledPoints:
+    """A labelled point cloud of a trained run (see the module docstring for the sources and filters).
+
+    Parameters
+    ----------
+    loaded : lift3d.train.trainer.LoadedRun
+        From :func:`lift3d.train.trainer.load_run`.
+    scene : lift3d.data.scene.Scene
+        The run's scene (``loaded.scene()``): training cameras decide visibility and ray origins.
+    source : {"surface", "rays"}
+    num_points : int
+        Points drawn before filtering (default one million).
+    frame : {"world", "normalized"}
+        Output coordinates: the input poses' frame (default), or the field's normalised frame.
+    density_threshold : float, optional
+        Isosurface density (normalised units); default chosen from the field
+        (:func:`lift3d.export.mesh.choose_density_threshold`).
+    min_confidence : float
+        Drop points whose chosen class has a lower probability.
+    voxel_size : float
+        > 0: one point per voxel of this size (output units) with majority-vote labels.
+    remove_outliers : bool
+        Open3D statistical outlier removal (20 neighbours, ``std_ratio``).
+    std_ratio : float
+    obb : OrientedBox or open3d.geometry.OrientedBoundingBox or dict, optional
+        Keep only points inside this box (output frame).
+    min_points : int
+        Instance fragments with fewer points are relabelled to their surroundings (dropped when isolated).
+    device : str, optional
+        Move the model to this device first (``cpu``, ``cuda``, ``auto``).
+    progress : bool
+
+    Returns
+    -------
+    LabelledPoints
+    """
+    from lift3d.export.instances import assign_instances, voxel_downsample_majority
+    from lift3d.export.mesh import _check_frame, to_frame, world_from_normalized
+
+    _check_frame(frame)
+    if source not in ("surface", "rays"):
+        raise InputError("--source", f"unknown source {source!r} (surface or rays)")
+    if int(num_points) < 1:
+        raise InputError("--num-points", f"must be at least 1, got {num_points}")
+    if voxel_size < 0 or not math.isfinite(voxel_size):
+        raise InputError("--voxel-size", f"must be a finite size >= 0, got {voxel_size}")
+    if not 0.0 <= min_confidence <= 1.0:
+        raise InputError("--min-confidence", f"must be in [0, 1], got {min_confidence}")
+    if std_ratio <= 0:
+        raise InputError("--std-ratio", f"must be > 0, got {std_ratio}")
+    if device is not None:
+        from lift3d.utils.device import resolve_device
+
+        loaded.model.to(resolve_device(device))
+    timings: dict[str, float] = {}
+    start = time.perf_counter()
+    if source == "surface":
+        cand = _surface_points(loaded, scene, int(num_points), density_threshold, progress, timings)
+    else:
+        cand = _ray_points(loaded, scene, int(num_points), progress, timings)
+    stats: dict[str, Any] = {"source": source, "drawn": int(len(cand["x"]))}
+    thresholds = dict(cand["thresholds"])
+    labels = cand["labels"]
+    xyz_norm = cand["x"]
+    rgb = cand["rgb"] if cand.get("rgb") is not None else labels.rgb
+    keep = np.ones(len(xyz_norm), bool)
+    if min_confidence > 0:
+        keep &= labels.confidence >= min_confidence
+        thresholds["min_confidence"] = float(min_confidence)
+    stats["after_confidence"] = int(keep.sum())
+    transform = world_from_normalized(loaded.norm)
+    xyz = to_frame(xyz_norm[keep], transform, frame)
+    rgb, semantic, channel, confidence = rgb[keep], labels.semantic[keep], labels.channel[keep], labels.confidence[keep]
+    if obb is not None:
+        box = OrientedBox.coerce(obb)
+        inside = box.contains(xyz)
+        xyz, rgb, semantic, channel, confidence = (a[inside] for a in (xyz, rgb, semantic, channel, confidence))
+        thresholds["obb"] = {"center": box.center.tolist(), "R": box.R.tolist(), "scale": box.scale.tolist()}
+        stats["after_obb"] = int(len(xyz))
+    if remove_outliers and len(xyz) > OUTLIER_NEIGHBOURS:
+        import open3d as o3d
+
+        cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(xyz))
+        _, kept = cloud.remove_statistical_outlier(nb_neighbors=OUTLIER_NEIGHBOURS, std_ratio=float(std_ratio))
+        kept = np.sort(np.asarray(kept, np.int64))
+        xyz, rgb, semantic, channel, confidence = (a[kept] for a in (xyz, rgb, semantic, channel, confidence))
+        thresholds["outliers"] = {"nb_neighbors": OUTLIER_NEIGHBOURS, "std_ratio": float(std_ratio)}
+        stats["after_outliers"] = int(len(xyz))
+    if voxel_size > 0 and len(xyz):
+        xyz, rgb, semantic, channel, confidence = voxel_downsample_majority(xyz, rgb, semantic, channel, confidence,
+                                                                            voxel_size)
+        thresholds["voxel_size"] = float(voxel_size)
+        stats["after_voxel"] = int(len(xyz))
+    t = time.perf_counter()
+    scale_out = 1.0 if frame == "normalized" else 1.0 / float(loaded.norm.scale)
+    # Instances link across gaps of about two grid cells, 1.5 point spacings (sparse clouds) or one voxel.
+    link = max(cand["link_radius_normalized"] * scale_out, 1.5 * typical_spacing(xyz), voxel_size)
+    assignment = assign_instances(xyz, semantic, channel, link_radius=link, min_points=int(min_points))
+    k = assignment.keep
+    timings["instances"] = time.perf_counter() - t
+    thresholds["instance_link_radius"] = float(link)
+    thresholds["min_points"] = int(min_points)
+    stats.update(points=int(k.sum()), instances=assignment.stats, seconds=timings,
+                 total_seconds=time.perf_counter() - start)
+    return LabelledPoints(
+        xyz=np.asarray(xyz[k], np.float32), rgb=np.asarray(rgb[k], np.uint8),
+        semantic=np.asarray(assignment.semantic[k], np.int32), instance=np.asarray(assignment.instance[k], np.int32),
+        confidence=np.asarray(confidence[k], np.float32), frame=frame, transform=transform, thresholds=thresholds,
+        stats=stats,
+    )
+
+
+def typical_spacing(xyz: np.ndarray, sample: int = 20000, seed: int = 0) -> float:
+    """Median nearest-neighbour distance of a point cloud, estimated from a random subset.
+
+    A random subset of ``n`` of ``N`` points sampled uniformly on a surface is ``√(N/n)`` times sparser, so
+    its spacing is scaled back (exact in expectation for such samples, which is what the surface source
+    draws).
+
+    Examples
+    --------
+    For 100 000 uniform points on a unit square the expected median is ``√(ln 2 / (π · 100 000))``:
+
+    >>> pts = np.c_[np.random.default_rng(0).random((100_000, 2)), np.zeros(100_000)]
+    >>> round(float(typical_spacing(pts) / np.sqrt(np.log(2) / (np.pi * 100_000))), 1)
+    1.0
+    """
+    from scipy.spatial import cKDTree
+
+    n = len(xyz)
+    if n < 2:
+        return 0.0
+    rng = np.random.default_rng(seed)
+    sub = xyz if n <= sample else xyz[rng.choice(n, sample, replace=False)]
+    d, _ = cKDTree(sub).query(sub, k=2, workers=-1)
+    return float(np.median(d[:, 1])) * math.sqrt(len(sub) / n)
+
+
+# ------------------------------------------------------------------------------------------ sources
+def surface_resolution(loaded) -> int:
+    """Isosurface grid cells per axis for point clouds: the field's finest grid resolution, in [128, 256]."""
+    return int(np.clip(int(loaded.cfg.field.grid_max_resolution or 128), 128, 256))
+
+
+def _surface_points(loaded, scene, num_points: int, density_threshold, progress: bool,
+                    timings: dict[str, float]) -> dict[str, Any]:
+    """Area-uniform samples on the seen part of the isosurface, labelled by the heads."""
+    from lift3d.export.instances import query_point_labels
+    from lift3d.export.mesh import (CameraVisibility, choose_density_threshold, field_isosurface, normalized_cameras,
+                                    train_frames, uncontract, view_directions)
+
+    model = loaded.model
+    t = time.perf_counter()
+    if density_threshold is None:
+        tau, info = choose_density_threshold(loaded, scene)
+    else:
+        if not density_threshold > 0:
+            raise InputError("--density-threshold", f"must be > 0, got {density_threshold}")
+        tau, info = float(density_threshold), {"rule": "set by the user (--density-threshold)",
+                                                "value": float(density_threshold)}
+    timings["threshold"] = time.perf_counter() - t
+    t = time.perf_counter()
+    surface = field_isosurface(model, tau, surface_resolution(loaded), progress=progress)
+    timings["isosurface"] = time.perf_counter() - t
+    if len(surface.faces) == 0:
+        raise InputError(loaded.run.path, f"the field has no surface at density {tau:.4g} (train longer, or pass a "
+                                          "lower --density-threshold)")
+    t = time.perf_counter()
+    cams = normalized_cameras(loaded, scene)
+    near = float(loaded.cfg.sampling.near_plane)
+    visibility = CameraVisibility(cams, train_frames(scene), surface.vertices, surface.faces, near=near,
+                                  tolerance=surface.voxel)
+    tri = surface.vertices[surface.faces].astype(np.float64)  # [M, 3, 3]
+    # Flying edges orients triangles consistently: this cross product points to lower density (outwards).
+    outward = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])
+    seen_by = visibility.first_seen_by(tri.mean(1), outward)
+    seen = np.flatnonzero(seen_by >= 0)
+    timings["visibility"] = time.perf_counter() - t
+    if len(seen) == 0:
+        raise InputError(loaded.run.path, "no part of the isosurface is seen by a training camera")
+    # Area in grid space: uniform in contracted space for unbounded scenes (see module docstring).
+    gtri = surface.grid_vertices[surface.faces[seen]].astype(np.float64)
+    area = 0.5 * np.linalg.norm(np.cross(gtri[:, 1] - gtri[:, 0], gtri[:, 2] - gtri[:, 0]), axis=1)
+    rng = np.random.default_rng(0)
+    cdf = np.cumsum(area)
+    pick = np.minimum(np.searchsorted(cdf, rng.random(num_points) * cdf[-1], side="right"), len(seen) - 1)
+    # Uniform barycentric coordinates (square-root trick).
+    r1 = np.sqrt(rng.random(num_points))[:, None]
+    r2 = rng.random(num_points)[:, None]
+    g = gtri[pick]
+    points_grid = (1 - r1) * g[:, 0] + r1 * (1 - r2) * g[:, 1] + r1 * r2 * g[:, 2]
+    x = uncontract(points_grid, surface.contraction) if surface.contraction != "none" else points_grid
+    dirs = view_directions(x, cams.centers[seen_by[seen[pick]]])
+    t = time.perf_counter()
+    labels = query_point_labels(model, x.astype(np.float32), dirs, progress=progress)
+    timings["heads"] = time.perf_counter() - t
+    thresholds = {
+        "density": tau, "density_rule": info, "surface_resolution": surface.resolution,
+        "visibility": {"rule": "in a training camera's image, beyond its near plane, no isosurface between "
+                               "camera and point", "occluder_tolerance": surface.voxel, "near": near},
+    }
+    return {"x": x, "labels": labels, "rgb": None, "thresholds": thresholds,
+            "link_radius_normalized": 2.0 * surface.voxel,
+            "surface": {"faces": int(len(surface.faces)), "seen_faces": int(len(seen)), **surface.stats}}
+
+
+def _ray_points(loaded, scene, num_points: int, progress: bool, timings: dict[str, float]) -> dict[str, Any]:
+    """Back-projected expected depth of random training rays with opacity > 0.5, labelled by the heads."""
+    import torch
+
+    from lift3d.export.instances import query_point_labels
+    from lift3d.export.mesh import train_frames
+
+    model = loaded.model
+    rays = loaded.rays(scene)
+    frames = train_frames(scene)
+    rng = np.random.default_rng(0)
+    xs, rgbs, dirs_kept = [], [], []
+    have, drawn, keep_rate = 0, 0, 1.0
+    t = time.perf_counter()
+    for _ in range(4):  # a few rounds: opaque rays are a fraction of all rays
+        need = num_points - have
+        if need <= 0:
+            break
+        n = int(min(max(need / max(keep_rate, 0.05), 1024), 4 * num_points))
+        frame = frames[rng.integers(0, len(frames), n)]
+        u = torch.from_numpy(rng.random(n) * scene.cameras.width[frame] - 0.5)
+        v = torch.from_numpy(rng.random(n) * scene.cameras.height[frame] - 0.5)
+        o, d, _ = rays.rays(torch.from_numpy(frame), u, v)
+        out = model.render_chunked(o, d, with_labels=False, progress=progress)
+        opacity = out["opacity"].cpu()
+        ok = (opacity > RAY_OPACITY_THRESHOLD).nonzero().squeeze(1)[:need]
+        depth = out["depth"].cpu()[ok] / opacity[ok]
+        o, d = o.cpu()[ok], d.cpu()[ok]
+        xs.append((o + d * depth[:, None]).numpy())
+        rgbs.append((out["rgb"].cpu()[ok].clamp(0, 1) * 255 + 0.5).to(torch.uint8).numpy())
+        dirs_kept.append(d.numpy())
+        drawn += n
+        have += len(ok)
+        keep_rate = max(have / drawn, 1e-3)
+    timings["render"] = time.perf_counter() - t
+    x = np.concatenate(xs) if xs else np.zeros((0, 3), np.float32)
+    if len(x) == 0:
+        raise InputError(loaded.run.path, "no training ray reaches opacity 0.5: the field is empty")
+    t = time.perf_counter()
+    labels = query_point_labels(model, x, np.concatenate(dirs_kept), progress=progress)
+    timings["heads"] = time.perf_counter() - t
+    field_voxel = 2.0 * (1.0 if model.bounded else 2.0) / max(int(loaded.cfg.field.grid_max_resolution), 1)
+    return {"x": x.astype(np.float64), "labels": labels, "rgb": np.concatenate(rgbs),
+            "thresholds": {"opacity": RAY_OPACITY_THRESHOLD, "rays_rendered": drawn},
+            "link_radius_normalized": 2.0 * field_voxel}
+
+
+# ------------------------------------------------------------------------------------------ benchmark
+def benchmark_export(run_path, num_points: int = 1_000_000, output_dir=None) -> dict[str, float]:
+    """Time a labelled point-cloud export of ``run_path``: extraction plus writing ``points.ply``.
+
+    Importing Open3D and PyVista (``import_seconds``) and loading the checkpoint and the scene
+    (``load_seconds``) are timed separately and not included in ``seconds``. ``peak_rss_mb`` is the
+    process's peak resident memory so far (it includes whatever ran before in the same process: call it in
+    a fresh process for a clean figure).
+
+    Returns
+    -------
+    dict
+        ``seconds``, ``peak_rss_mb``, ``load_seconds``, ``import_seconds``, ``extract_seconds``,
+        ``write_seconds``, ``points``, ``threads`` (torch intra-op threads), ``stages`` (seconds per
+        extraction stage).
+    """
+    import tempfile
+    from pathlib import Path
+
+    import torch
+
+    from lift3d.data.ply import write_labelled_ply
+    from lift3d.train.trainer import load_run
+
+    t0 = time.perf_counter()
+    import open3d  # noqa: F401  (library import time is process start-up, reported apart)
+    import pyvista  # noqa: F401
+
+    t_import = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    loaded = load_run(run_path, "cpu")
+    scene = loaded.scene()
+    t1 = time.perf_counter()
+    pts = extract_labelled_points(loaded, scene, num_points=num_points)
+    t2 = time.perf_counter()
+    with tempfile.TemporaryDirectory(dir=output_dir) as tmp:
+        write_labelled_ply(Path(tmp) / "points.ply", pts.xyz, rgb=pts.rgb, semantic=pts.semantic,
+                           instance=pts.instance, confidence=pts.confidence)
+        t3 = time.perf_counter()
+    return {"seconds": t3 - t1, "peak_rss_mb": peak_rss_mb(), "load_seconds": t1 - t0, "import_seconds": t_import,
+            "extract_seconds": t2 - t1, "write_seconds": t3 - t2, "points": int(len(pts)),
+            "threads": torch.get_num_threads(), "stages": pts.stats.get("seconds", {})}
+
+
+def peak_rss_mb() -> float:
+    """Peak resident set size of this process in MiB."""
+    try:
+        import resource
+
+        return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0  # KiB on Linux
+    except ImportError:  # Windows
+        import psutil
+
+        return psutil.Process().memory_info().peak_wset / 2**20  # type: ignore[attr-defined]

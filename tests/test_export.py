@@ -1,0 +1,580 @@
+"""lift3d export: labelled points, meshes, instances, file formats, the loading API and the CLI.
+
+Most tests run the export pipeline on an *analytic* field (known spheres and a floor slab plugged into a
+small model in place of its density and label heads), so that positions, visibility and instance ids can be
+checked against exact answers. One session-scoped tiny training run checks the CLI end to end.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import os
+import shutil
+import subprocess
+from pathlib import Path
+from types import SimpleNamespace
+
+import numpy as np
+import pytest
+import torch
+
+import lift3d
+from lift3d.data.cameras import look_at
+from lift3d.data.ply import read_labelled_ply
+from lift3d.data.scene import Category, SceneWriter, Segment, load_scene
+from lift3d.errors import InputError
+from lift3d.export import check_writable, export_run
+from lift3d.export.formats import read_pcd, read_semantickitti_label, write_pcd
+from lift3d.export.instances import _tiny_model, assign_instances, voxel_downsample_majority
+from lift3d.export.mesh import choose_density_threshold, extract_labelled_mesh
+from lift3d.export.pointcloud import OrientedBox, extract_labelled_points
+from lift3d.train.normalization import SceneNormalization
+from lift3d.train.run import RunFolder
+from lift3d.train.trainer import LoadedRun
+
+# ------------------------------------------------------------------------------------------ analytic field
+# Normalised coordinates. Shell A (a hollow ball) hides a solid ball C inside it; ball B stands apart; a
+# floor slab (stuff) lies below. A and B share one instance channel: they must become two instances.
+SHELL_A = (np.array([-0.3, 0.0, 0.0]), 0.30, 0.24)  # centre, outer radius, inner radius
+BALL_B = (np.array([0.45, 0.0, 0.0]), 0.15)
+BALL_C = (np.array([-0.3, 0.0, 0.0]), 0.10)  # inside A: never visible
+FLOOR_TOP, FLOOR_BOTTOM, FLOOR_RADIUS = -0.5, -0.6, 0.9  # a round slab
+PEAK_DENSITY = 200.0
+RAMP = 0.01  # density rises from 0 to PEAK over this distance
+THING, STUFF = 3, 1  # category ids of the tiny model's label space (semantic_ids [1, 2, 3], things [3])
+WORLD_CENTER, WORLD_SCALE = np.array([1.0, 2.0, 3.0]), 0.5  # x_norm = (x_world - center) * scale
+
+
+def _inside_distance(x: torch.Tensor) -> torch.Tensor:
+    """Signed distance *into* the nearest solid (positive inside)."""
+    ca, ra_out, ra_in = SHELL_A
+    d_a = (x - torch.as_tensor(ca, dtype=x.dtype)).norm(dim=-1)
+    shell = torch.minimum(d_a - ra_in, ra_out - d_a)
+    ball_b = BALL_B[1] - (x - torch.as_tensor(BALL_B[0], dtype=x.dtype)).norm(dim=-1)
+    ball_c = BALL_C[1] - (x - torch.as_tensor(BALL_C[0], dtype=x.dtype)).norm(dim=-1)
+    floor = torch.minimum(torch.minimum(FLOOR_TOP - x[:, 2], x[:, 2] - FLOOR_BOTTOM),
+                          FLOOR_RADIUS - x[:, :2].norm(dim=-1))
+    return torch.stack([shell, ball_b, ball_c, floor]).amax(0)
+
+
+def analytic_model():
+    """The tiny model with density and label heads replaced by the analytic scene (colour head kept)."""
+    model = _tiny_model()
+    field = model.field
+    geo_dim = model.cfg.field.geo_feat_dim
+
+    def geometry(x):
+        sigma = PEAK_DENSITY * ((_inside_distance(x) / RAMP) + 0.5).clamp(0.0, 1.0)
+        inside_box = (x.abs() <= 1.0).all(-1)
+        return sigma * inside_box, torch.zeros(len(x), geo_dim), ((x + 1) / 2).clamp(0, 1)
+
+    def labels(u, geo):
+        x = u * 2 - 1
+        sem = torch.zeros(len(x), 4)
+        is_floor = x[:, 2] < (FLOOR_TOP + 0.05)
+        sem[:, 3] = torch.where(is_floor, 0.0, 10.0)  # channel 3 = category 3 (thing)
+        sem[:, 1] = torch.where(is_floor, 10.0, 0.0)  # channel 1 = category 1 (stuff)
+        inst = torch.zeros(len(x), 3)
+        inst[:, 0] = 10.0  # one instance channel for every thing point
+        return sem, inst
+
+    field.geometry = geometry
+    field.labels = labels
+    return model
+
+
+def _write_ring_scene(root: Path, n_frames: int = 8) -> Path:
+    """Cameras on a ring around the analytic scene, looking at it (world coordinates)."""
+    cats = [Category(1, "floor", False, (80, 60, 40)), Category(2, "wall", False, (120, 120, 120)),
+            Category(3, "ball", True, (200, 30, 30))]
+    h, w = 30, 40
+    with SceneWriter(root, cats) as writer:
+        names = []
+        for k in range(n_frames):
+            a = 2 * np.pi * k / n_frames
+            eye_n = np.array([2.0 * np.cos(a), 2.0 * np.sin(a), 0.9])
+            eye = eye_n / WORLD_SCALE + WORLD_CENTER
+            target = np.array([0.0, 0.0, -0.2]) / WORLD_SCALE + WORLD_CENTER
+            seg = np.ones((h, w), np.int64)
+            names.append(writer.add_frame(f"f{k:02d}", np.zeros((h, w, 3), np.uint8), look_at(eye, target),
+                                          (30.0, 30.0, w / 2, h / 2), panoptic=seg, segments=[Segment(1, 1)]))
+        writer.set_splits(train=names)
+    return root
+
+
+@pytest.fixture(scope="module")
+def analytic(tmp_path_factory) -> SimpleNamespace:
+    """A LoadedRun-like object over the analytic field, and its scene."""
+    root = tmp_path_factory.mktemp("analytic")
+    scene = load_scene(_write_ring_scene(root / "scene"))
+    (root / "run").mkdir()
+    model = analytic_model()
+    norm = SceneNormalization(WORLD_CENTER.copy(), WORLD_SCALE, True,
+                              np.stack([WORLD_CENTER - 2, WORLD_CENTER + 2]))
+    loaded = LoadedRun(RunFolder(root / "run"), model.cfg, model, norm, model.labels, 0, torch.device("cpu"))
+    return SimpleNamespace(loaded=loaded, scene=scene, root=root)
+
+
+def _normalized(xyz_world: np.ndarray) -> np.ndarray:
+    return (np.asarray(xyz_world, np.float64) - WORLD_CENTER) * WORLD_SCALE
+
+
+@pytest.fixture(scope="module")
+def surface_points(analytic):
+    return extract_labelled_points(analytic.loaded, analytic.scene, num_points=20000)
+
+
+# ------------------------------------------------------------------------------------------ geometry
+def test_surface_points_lie_on_the_visible_surfaces(surface_points):
+    pts = surface_points
+    assert len(pts) == 20000 and pts.frame == "world"
+    x = _normalized(pts.xyz)
+    d_a = np.linalg.norm(x - SHELL_A[0], axis=1)
+    d_b = np.linalg.norm(x - BALL_B[0], axis=1)
+    on_a = np.abs(d_a - SHELL_A[1]) < 0.02
+    on_b = np.abs(d_b - BALL_B[1]) < 0.02
+    on_floor = (np.abs(x[:, 2] - FLOOR_TOP) < 0.02) | \
+        ((np.abs(np.linalg.norm(x[:, :2], axis=1) - FLOOR_RADIUS) < 0.02) & (x[:, 2] > FLOOR_BOTTOM - 0.02))
+    assert (on_a | on_b | on_floor).all(), "every point lies on a visible surface"
+    assert on_a.sum() > 1000 and on_b.sum() > 300 and on_floor.sum() > 1000
+    # Hidden surfaces: the inside of shell A, ball C inside it, the underside of the floor.
+    assert not (d_a < SHELL_A[1] - 0.03).any()
+    assert not ((x[:, 2] < FLOOR_TOP - 0.03) & (np.linalg.norm(x[:, :2], axis=1) < FLOOR_RADIUS - 0.03)).any()
+    # Labels: things on the balls (one channel, two separated objects → two instances), stuff on the floor.
+    assert set(np.unique(pts.semantic[on_floor]).tolist()) == {STUFF}
+    assert (pts.instance[on_floor] == 0).all()
+    assert set(np.unique(pts.instance[on_a]).tolist()) == {1}, "the larger object gets id 1"
+    assert set(np.unique(pts.instance[on_b]).tolist()) == {2}
+    assert pts.xyz.dtype == np.float32 and pts.semantic.dtype == np.int32 and pts.instance.dtype == np.int32
+    assert pts.rgb.dtype == np.uint8 and pts.confidence.dtype == np.float32
+    assert np.all((pts.confidence > 0.5) & (pts.confidence <= 1.0))
+
+
+def test_automatic_threshold_matches_the_rendered_surface(analytic):
+    tau, info = choose_density_threshold(analytic.loaded, analytic.scene)
+    assert 0 < tau < PEAK_DENSITY, info
+    assert info["mean_error_samples"] < 2.0
+
+
+def test_normalized_frame_and_transform(analytic, surface_points):
+    norm_pts = extract_labelled_points(analytic.loaded, analytic.scene, num_points=20000, frame="normalized",
+                                       density_threshold=surface_points.thresholds["density"])
+    np.testing.assert_allclose(norm_pts.xyz, _normalized(surface_points.xyz), atol=1e-5)
+    # transform maps normalised → world.
+    homog = np.c_[norm_pts.xyz, np.ones(len(norm_pts))] @ surface_points.transform.T
+    np.testing.assert_allclose(homog[:, :3], surface_points.xyz, atol=1e-4)
+    np.testing.assert_array_equal(norm_pts.instance, surface_points.instance)
+
+
+def test_rays_source_backprojects_opaque_rays(analytic, monkeypatch):
+    # The tiny model's proposal grids are untrained: render with dense uniform samples instead, so that the
+    # rendered depth is exact up to the sample spacing and only the back-projection is under test.
+    monkeypatch.setattr(analytic.loaded.model, "proposals", torch.nn.ModuleList())
+    monkeypatch.setattr(analytic.loaded.model.cfg.sampling, "num_samples", 384)
+    pts = extract_labelled_points(analytic.loaded, analytic.scene, source="rays", num_points=2000)
+    x = _normalized(pts.xyz)
+    d_a = np.linalg.norm(x - SHELL_A[0], axis=1)
+    d_b = np.linalg.norm(x - BALL_B[0], axis=1)
+    near_surface = (np.abs(d_a - SHELL_A[1]) < 0.03) | (np.abs(d_b - BALL_B[1]) < 0.03) | \
+        (np.abs(x[:, 2] - FLOOR_TOP) < 0.03) | (np.abs(np.linalg.norm(x[:, :2], axis=1) - FLOOR_RADIUS) < 0.03)
+    assert 0 < len(pts) <= 2000
+    assert near_surface.mean() > 0.98
+    assert pts.thresholds["opacity"] == 0.5
+
+
+def test_unbounded_scene_is_contoured_in_contracted_space_and_cropped(tmp_path):
+    # Balls at the origin (foreground), at 2.5 (contracted background) and at 10 (beyond the export radius).
+    balls = [(np.array([0.0, 0.0, 0.0]), 0.3), (np.array([0.0, 2.5, 0.0]), 0.5), (np.array([0.0, -10.0, 0.0]), 2.0)]
+    model = _tiny_model()
+    model.field.space.contraction, model.field.space.extent = "linf", 2.0
+    model.bounded = False
+    geo_dim = model.cfg.field.geo_feat_dim
+
+    def geometry(x):
+        inside = torch.stack([r - (x - torch.as_tensor(c, dtype=x.dtype)).norm(dim=-1) for c, r in balls]).amax(0)
+        sigma = PEAK_DENSITY * (inside / (RAMP * (1 + x.norm(dim=-1))) + 0.5).clamp(0.0, 1.0)
+        return sigma, torch.zeros(len(x), geo_dim), torch.rand(len(x), 3)
+
+    model.field.geometry = geometry
+    cats = [Category(1, "floor", False), Category(2, "wall", False), Category(3, "ball", True)]
+    with SceneWriter(tmp_path / "scene", cats) as writer:
+        names = []
+        for k in range(12):  # a ring looking inwards and outwards, like a street capture
+            a = 2 * np.pi * k / 12
+            eye = np.array([0.9 * np.cos(a), 0.9 * np.sin(a), 0.3])
+            target = eye * (3.0 if k % 2 else -1.0)
+            target[2] = 0.0
+            names.append(writer.add_frame(f"f{k:02d}", np.zeros((30, 40, 3), np.uint8), look_at(eye, target),
+                                          (25.0, 25.0, 20.0, 15.0), panoptic=np.ones((30, 40), np.int64),
+                                          segments=[Segment(1, 1)]))
+        writer.set_splits(train=names)
+    scene = load_scene(tmp_path / "scene")
+    norm = SceneNormalization(np.zeros(3), 1.0, False, np.array([[-1.0] * 3, [1.0] * 3]))
+    (tmp_path / "run").mkdir()
+    loaded = LoadedRun(RunFolder(tmp_path / "run"), model.cfg, model, norm, model.labels, 0, torch.device("cpu"))
+    pts = extract_labelled_points(loaded, scene, num_points=20000, density_threshold=PEAK_DENSITY / 2)
+    d = np.stack([np.linalg.norm(pts.xyz - c, axis=1) - r for c, r in balls], 1)
+    near_ball = np.abs(d) < np.array([0.02, 0.2, 1.0])
+    assert near_ball[:, :2].any(1).all(), "every point lies on the foreground or the background ball"
+    assert near_ball[:, 0].sum() > 1000 and near_ball[:, 1].sum() > 100
+    assert np.abs(pts.xyz).max() <= 4.0 + 1e-3, "far background beyond the export radius is skipped"
+
+
+def test_obb_crop_keeps_exactly_the_points_inside(analytic, surface_points):
+    # A box around ball B only (world frame), rotated 45° about z.
+    center = BALL_B[0] / WORLD_SCALE + WORLD_CENTER
+    box = OrientedBox.from_params(center, (0.0, 0.0, np.pi / 4), (0.8, 0.8, 0.8))
+    cropped = extract_labelled_points(analytic.loaded, analytic.scene, num_points=20000, obb=box,
+                                      density_threshold=surface_points.thresholds["density"])
+    assert 0 < len(cropped) < len(surface_points)
+    assert box.contains(cropped.xyz).all()
+    expected = box.contains(surface_points.xyz).sum()
+    assert len(cropped) == expected
+    # Inside the box lives only ball B: one instance, renumbered to 1.
+    assert set(np.unique(cropped.instance).tolist()) <= {0, 1} and cropped.instance.max() == 1
+
+
+def test_obb_rotation_convention():
+    box = OrientedBox.from_params((0, 0, 0), (0, 0, np.pi / 2), (4, 1, 1))  # yaw 90°: long side along y
+    assert box.contains(np.array([[0, 1.9, 0]])).all()
+    assert not box.contains(np.array([[1.9, 0, 0]])).any()
+    with pytest.raises(InputError, match="obb-scale"):
+        OrientedBox.from_params(scale=(1, 0, 1))
+
+
+# ------------------------------------------------------------------------------------------ labels
+def test_voxel_downsampling_votes_labels_instead_of_averaging():
+    rng = np.random.default_rng(0)
+    # Voxel [0,1)^3 holds three points of class 3 and two of class 5; an average would give 3.8 or 4.
+    xyz = np.array([[0.1, 0.1, 0.1], [0.2, 0.2, 0.2], [0.3, 0.3, 0.3], [0.4, 0.4, 0.4], [0.5, 0.5, 0.5],
+                    [1.5, 0.5, 0.5]])
+    sem = np.array([3, 3, 3, 5, 5, 5])
+    chan = np.array([2, 2, 2, 1, 1, 0])
+    conf = np.array([0.6, 0.8, 1.0, 0.1, 0.1, 0.5], np.float32)
+    rgb = rng.integers(0, 255, (6, 3)).astype(np.uint8)
+    out_xyz, out_rgb, out_sem, out_chan, out_conf = voxel_downsample_majority(xyz, rgb, sem, chan, conf, 1.0)
+    assert out_sem.tolist() == [3, 5] and out_chan.tolist() == [2, 0]
+    np.testing.assert_allclose(out_conf, [0.8, 0.5], atol=1e-6)  # mean confidence of the winning label
+    np.testing.assert_allclose(out_xyz[0], [0.3, 0.3, 0.3], atol=1e-6)
+    np.testing.assert_array_equal(out_rgb[0], np.round(rgb[:5].mean(0)).astype(np.uint8))
+    assert out_sem.dtype == np.int32
+
+
+def test_voxel_size_option_in_the_pipeline(analytic, surface_points):
+    voxel = 0.1  # world units
+    pts = extract_labelled_points(analytic.loaded, analytic.scene, num_points=20000, voxel_size=voxel,
+                                  density_threshold=surface_points.thresholds["density"])
+    keys = np.floor(pts.xyz / voxel).astype(np.int64)
+    assert len(np.unique(keys, axis=0)) == len(pts) < len(surface_points)
+    assert set(np.unique(pts.semantic).tolist()) <= {THING, STUFF}  # never an averaged class such as 2
+    assert pts.instance.max() == 2
+
+
+def test_instance_ids_are_contiguous_and_stable():
+    rng = np.random.default_rng(1)
+    # Four blobs of one class and one raw channel (so only space separates them) and some stuff.
+    centers = np.array([[0, 0, 0], [5, 0, 0], [1, 5, 0], [0, 0, 5]], float)
+    sizes = [50, 200, 120, 120]
+    xyz = np.concatenate([c + rng.uniform(-0.1, 0.1, (n, 3)) for c, n in zip(centers, sizes)]
+                         + [rng.uniform(10, 11, (30, 3))])
+    sem = np.array([7] * sum(sizes) + [1] * 30)
+    chan = np.array([4] * sum(sizes) + [0] * 30)
+    ids = assign_instances(xyz, sem, chan, link_radius=0.5).instance
+    starts = np.cumsum([0] + sizes)[:-1]
+    # Largest first; equal sizes ordered by centroid x (the blob at x = 0 before the one at x = 1).
+    assert [int(ids[s]) for s in starts] == [4, 1, 3, 2]
+    for s, n in zip(starts, sizes):
+        assert len(np.unique(ids[s:s + n])) == 1
+    assert (ids[-30:] == 0).all()
+    # Stable: the same points in another order get the same ids.
+    perm = rng.permutation(len(xyz))
+    np.testing.assert_array_equal(assign_instances(xyz[perm], sem[perm], chan[perm], link_radius=0.5).instance,
+                                  ids[perm])
+
+
+def test_min_points_relabels_fragments_to_their_surroundings_or_drops_isolated_ones():
+    rng = np.random.default_rng(2)
+    chair = rng.uniform(0, 1, (2000, 3))  # class 7, channel 1
+    speck = np.array([[0.5, 0.5, 1.02], [0.52, 0.5, 1.02]])  # class 9, channel 2, touching the chair
+    lonely = np.array([[20.0, 20.0, 20.0]])  # class 7, channel 3, far from everything
+    xyz = np.concatenate([chair, speck, lonely])
+    sem = np.array([7] * 2000 + [9, 9] + [7])
+    chan = np.array([1] * 2000 + [2, 2] + [3])
+    kept_all = assign_instances(xyz, sem, chan, link_radius=0.2)
+    assert kept_all.instance.max() == 3 and kept_all.keep.all()
+    res = assign_instances(xyz, sem, chan, link_radius=0.2, min_points=5)
+    assert res.semantic[2000:2002].tolist() == [7, 7], "the speck takes the chair's class"
+    assert res.instance[2000:2002].tolist() == [1, 1] and (res.instance[:2000] == 1).all()
+    assert not res.keep[2002], "an isolated fragment is dropped"
+    assert res.stats["fragments_relabelled"] == 1 and res.stats["fragments_dropped"] == 1
+
+
+def test_min_points_in_the_pipeline(analytic, surface_points):
+    # Ball B is about one fifth of the thing points; min_points above its size makes it a fragment, which
+    # would take the label of its surroundings, but nothing is within reach of it: it is dropped.
+    pts = surface_points
+    b_size = int((pts.instance == 2).sum())
+    pruned = extract_labelled_points(analytic.loaded, analytic.scene, num_points=20000, min_points=b_size + 1,
+                                     density_threshold=pts.thresholds["density"])
+    assert pruned.instance.max() == 1
+    assert len(pruned) == len(pts) - b_size
+    np.testing.assert_array_equal(pruned.xyz, pts.xyz[pts.instance != 2])
+
+
+def test_min_confidence_filter(analytic, surface_points):
+    pts = extract_labelled_points(analytic.loaded, analytic.scene, num_points=20000, min_confidence=0.9999999,
+                                  density_threshold=surface_points.thresholds["density"])
+    assert len(pts) < len(surface_points)
+    assert (pts.confidence >= 0.9999999).all()
+
+
+def test_outlier_removal_keeps_a_subset_and_records_its_settings(analytic, surface_points):
+    pts = extract_labelled_points(analytic.loaded, analytic.scene, num_points=20000, remove_outliers=True,
+                                  std_ratio=0.5, density_threshold=surface_points.thresholds["density"])
+    assert 0 < len(pts) < len(surface_points)
+    before = {tuple(p) for p in surface_points.xyz.round(5).tolist()}
+    assert all(tuple(p) in before for p in pts.xyz.round(5).tolist())
+    assert pts.thresholds["outliers"] == {"nb_neighbors": 20, "std_ratio": 0.5}
+
+
+def test_bad_options_are_input_errors(analytic):
+    for kwargs, flag in (({"source": "lidar"}, "--source"), ({"frame": "camera"}, "--frame"),
+                         ({"num_points": 0}, "--num-points"), ({"voxel_size": -1.0}, "--voxel-size"),
+                         ({"min_confidence": 2.0}, "--min-confidence"), ({"density_threshold": -1.0}, "--density")):
+        with pytest.raises(InputError, match=flag):
+            extract_labelled_points(analytic.loaded, analytic.scene, num_points=kwargs.pop("num_points", 100),
+                                    **kwargs)
+
+
+# ------------------------------------------------------------------------------------------ files
+@pytest.fixture(scope="module")
+def exported(analytic, tmp_path_factory) -> Path:
+    out = tmp_path_factory.mktemp("export")
+    export_run(analytic.root / "run", out, pointcloud=True, mesh=True, formats=("ply", "pcd", "label"),
+               split_instances=True, resolution=64, loaded=analytic.loaded, scene=analytic.scene,
+               num_points=20000, command="pytest")
+    return out
+
+
+def test_export_writes_every_file(exported):
+    names = {p.name for p in exported.iterdir()}
+    assert {"points.ply", "points.pcd", "points.label", "points.bin", "mesh.ply", "instances.json", "classes.json",
+            "metadata.json", "instances"} <= names
+    assert not [n for n in names if n.startswith(".")], "no temporary files left behind"
+    meta = json.loads((exported / "metadata.json").read_text())
+    assert meta["frame"] == "world" and meta["lift3d_version"] == lift3d.__version__
+    assert meta["command"] == "pytest" and meta["thresholds"]["points"]["density"] > 0
+    np.testing.assert_allclose(np.asarray(meta["transform"])[:3, :3], np.eye(3) / WORLD_SCALE)
+    classes = json.loads((exported / "classes.json").read_text())["classes"]
+    assert [(c["id"], c["name"], c["isthing"]) for c in classes] == [(1, "floor", False), (2, "wall", False),
+                                                                     (3, "ball", True)]
+
+
+def test_points_ply_opens_in_plyfile_open3d_and_pyvista(exported):
+    from plyfile import PlyData
+
+    ply = PlyData.read(str(exported / "points.ply"))
+    v = ply["vertex"].data
+    types = {name: v.dtype[name] for name in v.dtype.names}
+    assert types["x"] == np.float32 and types["red"] == np.uint8 and types["semantic"] == np.int32
+    assert types["instance"] == np.int32 and types["confidence"] == np.float32
+
+    import open3d as o3d
+
+    pc = o3d.t.io.read_point_cloud(str(exported / "points.ply"))
+    mine = read_labelled_ply(exported / "points.ply")
+    assert pc.point["semantic"].dtype == o3d.core.int32 and pc.point["instance"].dtype == o3d.core.int32
+    np.testing.assert_array_equal(pc.point["semantic"].numpy().ravel(), mine["semantic"])
+    np.testing.assert_array_equal(pc.point["instance"].numpy().ravel(), mine["instance"])
+    np.testing.assert_allclose(pc.point["positions"].numpy(), mine["xyz"])
+
+    import pyvista as pv
+
+    cloud = pv.read(str(exported / "points.ply"))
+    np.testing.assert_allclose(np.asarray(cloud.points), mine["xyz"])
+
+
+def test_pcd_opens_in_open3d_with_its_label_field(exported, tmp_path):
+    import open3d as o3d
+
+    mine = read_labelled_ply(exported / "points.ply")
+    for path in (exported / "points.pcd", tmp_path / "ascii.pcd"):
+        if path.name == "ascii.pcd":
+            write_pcd(path, mine["xyz"], rgb=mine["rgb"], semantic=mine["semantic"], instance=mine["instance"],
+                      confidence=mine["confidence"], binary=False)
+        pc = o3d.t.io.read_point_cloud(str(path))
+        np.testing.assert_array_equal(pc.point["label"].numpy().ravel(), mine["semantic"])
+        np.testing.assert_array_equal(pc.point["instance"].numpy().ravel(), mine["instance"])
+        np.testing.assert_array_equal(pc.point["colors"].numpy(), mine["rgb"])
+        np.testing.assert_allclose(pc.point["positions"].numpy(), mine["xyz"], rtol=1e-6)
+        np.testing.assert_allclose(pc.point["confidence"].numpy().ravel(), mine["confidence"], rtol=1e-6)
+        ours = read_pcd(path)
+        np.testing.assert_array_equal(ours["label"], mine["semantic"])
+        np.testing.assert_array_equal(ours["rgb"], mine["rgb"])
+
+
+def test_semantickitti_label_round_trip(exported):
+    mine = read_labelled_ply(exported / "points.ply")
+    sem, inst = read_semantickitti_label(exported / "points.label")
+    np.testing.assert_array_equal(sem, mine["semantic"])
+    np.testing.assert_array_equal(inst, mine["instance"])
+    raw = np.fromfile(exported / "points.label", "<u4")
+    np.testing.assert_array_equal(raw, (mine["instance"].astype(np.uint32) << 16) | mine["semantic"].astype(np.uint32))
+    scan = np.fromfile(exported / "points.bin", "<f4").reshape(-1, 4)
+    np.testing.assert_allclose(scan[:, :3], mine["xyz"])
+
+
+def test_mesh_has_per_vertex_labels_and_instance_submeshes(exported):
+    mesh = read_labelled_ply(exported / "mesh.ply")
+    assert len(mesh["faces"]) > 100 and mesh["semantic"].dtype == np.int32
+    assert set(np.unique(mesh["semantic"]).tolist()) <= {THING, STUFF}
+    x = _normalized(mesh["xyz"])
+    on_b = np.abs(np.linalg.norm(x - BALL_B[0], axis=1) - BALL_B[1]) < 0.05
+    on_a = np.abs(np.linalg.norm(x - SHELL_A[0], axis=1) - SHELL_A[1]) < 0.05
+    # Mesh instance ids agree with the point cloud's (A = 1, B = 2).
+    assert np.bincount(mesh["instance"][on_a]).argmax() == 1
+    assert np.bincount(mesh["instance"][on_b]).argmax() == 2
+    subs = sorted(p.name for p in (exported / "instances").iterdir())
+    assert "1_ball.ply" in subs and "2_ball.ply" in subs
+    sub = read_labelled_ply(exported / "instances" / "2_ball.ply")
+    assert (sub["instance"] == 2).all() and len(sub["faces"]) > 10
+    import pyvista as pv
+
+    assert pv.read(str(exported / "mesh.ply")).n_cells == len(mesh["faces"])
+
+
+def test_mesh_api_without_points(analytic):
+    mesh = extract_labelled_mesh(analytic.loaded, analytic.scene, resolution=48, frame="normalized")
+    d_b = np.abs(np.linalg.norm(mesh.vertices - BALL_B[0], axis=1) - BALL_B[1])
+    assert (d_b < 0.03).sum() > 20
+    assert mesh.faces.max() < len(mesh.vertices) and mesh.instance.max() >= 2
+
+
+def test_load_labelled_points_and_instances_api(exported):
+    pts = lift3d.load_labelled_points(exported / "points.ply")
+    same = lift3d.load_labelled_points(exported)
+    np.testing.assert_array_equal(pts.instance, same.instance)
+    assert pts.classes[3].name == "ball" and pts.classes[3].isthing and pts.class_name(1) == "floor"
+    assert pts.metadata["frame"] == "world"
+    records = lift3d.instances(exported)
+    assert [r.id for r in records] == [1, 2]
+    by_id = pts.instance_indices()
+    for r in records:
+        members = pts.xyz[by_id[r.id]]
+        assert r.class_name == "ball" and r.count == len(members)
+        np.testing.assert_allclose(r.centroid, members.mean(0), atol=1e-4)
+        np.testing.assert_allclose(r.aabb, [members.min(0), members.max(0)], atol=1e-5)
+        assert r.obb.contains(members, margin=1e-4).all()
+        assert 0 < r.mean_confidence <= 1
+    # The PCD loads into the same arrays.
+    via_pcd = lift3d.load_labelled_points(exported / "points.pcd")
+    np.testing.assert_array_equal(via_pcd.semantic, pts.semantic)
+
+
+def test_readonly_output_dir_is_an_input_error_naming_it(tmp_path, monkeypatch):
+    target = tmp_path / "locked"
+    target.mkdir()
+    with _read_only(target, monkeypatch):
+        with pytest.raises(InputError) as err:
+            check_writable(target)
+    assert str(target) in str(err.value)
+
+
+@contextlib.contextmanager
+def _read_only(folder: Path, monkeypatch):
+    """Make ``folder`` unwritable: chmod for ordinary users; root ignores modes, so ``chattr +i`` (or, where
+    the filesystem refuses, a patched ``mkstemp`` that fails as a read-only folder would)."""
+    if os.geteuid() != 0:
+        folder.chmod(0o555)
+        try:
+            yield
+        finally:
+            folder.chmod(0o755)
+        return
+    chattr = shutil.which("chattr")
+    if chattr and subprocess.run([chattr, "+i", str(folder)], capture_output=True).returncode == 0:
+        try:
+            yield
+        finally:
+            subprocess.run([chattr, "-i", str(folder)], capture_output=True)
+        return
+    import tempfile
+
+    real = tempfile.mkstemp
+
+    def refuse(*args, dir=None, **kwargs):
+        if dir is not None and Path(dir) == folder:
+            raise PermissionError(13, "Permission denied")
+        return real(*args, dir=dir, **kwargs)
+
+    monkeypatch.setattr(tempfile, "mkstemp", refuse)
+    yield
+
+
+def test_failed_write_leaves_no_partial_file(analytic, tmp_path, monkeypatch):
+    out = tmp_path / "out"
+    out.mkdir()
+    (out / "points.ply").write_bytes(b"previous complete file")
+    import lift3d.utils.atomic as atomic
+
+    def disk_full(fd):
+        raise OSError(28, "No space left on device")
+
+    monkeypatch.setattr(atomic.os, "fsync", disk_full)
+    with pytest.raises(InputError, match="points.ply"):
+        export_run(analytic.root / "run", out, loaded=analytic.loaded, scene=analytic.scene, num_points=2000,
+                   formats=("ply", "pcd"))
+    assert (out / "points.ply").read_bytes() == b"previous complete file"
+    assert sorted(p.name for p in out.iterdir()) == ["points.ply"], "no temporary or partial files"
+
+
+# ------------------------------------------------------------------------------------------ CLI end to end
+@pytest.fixture(scope="session")
+def tiny_run(tmp_path_factory) -> Path:
+    """A tiny synthetic scene trained for a few steps (geometry is rough, which is all the CLI needs)."""
+    from lift3d.synth import make_scene
+    from lift3d.train.trainer import train
+
+    root = tmp_path_factory.mktemp("tiny_run")
+    make_scene(root / "scene", kind="indoor", seed=0, noise="moderate", n_views=6, width=32, height=32,
+               progress=False)
+    result = train(root / "scene", preset="fast", output_dir=root / "runs", progress=False, print_summary=False,
+                   overrides={"optim": {"steps": 15}, "losses": {"feature": 0.0},
+                              "data": {"patch_size": 0, "rays_per_image": 128},
+                              "field": {"grid_resolution_cap": 48},
+                              "trainer": {"eval_every": 0, "eval_images": 0, "checkpoint_every": 0}})
+    return Path(result.run.path)
+
+
+def test_cli_end_to_end(tiny_run, tmp_path, capsys):
+    from lift3d.cli.main import main
+
+    out = tmp_path / "export"
+    rc = main(["export", "--run", str(tiny_run), "--pointcloud", "--mesh", "--format", "ply", "pcd", "label",
+               "--num-points", "4000", "--resolution", "32", "--min-points", "20", "--voxel-size", "0.02",
+               "--output-dir", str(out), "--quiet"])
+    assert rc == 0, capsys.readouterr().err
+    assert "lift3d export: wrote" in capsys.readouterr().out
+    pts = lift3d.load_labelled_points(out)
+    records = lift3d.instances(out)
+    assert 0 < len(pts) <= 4000
+    ids = np.unique(pts.instance[pts.instance > 0])
+    assert ids.tolist() == list(range(1, len(ids) + 1)) == [r.id for r in records]
+    assert all(r.count >= 20 for r in records)
+    meta = json.loads((out / "metadata.json").read_text())
+    assert meta["source_run"]["path"] == str(tiny_run.resolve()) and meta["options"]["min_points"] == 20
+    assert meta["command"].startswith("lift3d ")
+    gt = read_labelled_ply(load_scene(meta["source_run"]["scene"]).gt_points_path)
+    assert np.linalg.norm(pts.xyz.mean(0) - gt["xyz"].mean(0)) < np.linalg.norm(np.ptp(gt["xyz"], 0))
+
+
+def test_cli_errors_are_one_line(tiny_run, tmp_path, capsys):
+    from lift3d.cli.main import main
+
+    assert main(["export", "--run", str(tiny_run), "--output-dir", str(tmp_path)]) == 2
+    assert "give --pointcloud and/or --mesh" in capsys.readouterr().err
+    assert main(["export", "--run", str(tmp_path / "nope"), "--pointcloud", "--output-dir", str(tmp_path)]) == 2
+    assert main(["export", "--run", str(tiny_run), "--pointcloud", "--obb-center", "0", "0", "0",
+                 "--output-dir", str(tmp_path)]) == 2
+    assert "--obb-scale" in capsys.readouterr().err
