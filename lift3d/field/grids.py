@@ -90,7 +90,8 @@ class _GatherTrilinear(torch.autograd.Function):
         idx, w = ctx.saved_tensors
         table = ctx.table
         n, c = grad_out.shape
-        contrib = torch.bmm(w.view(n, 8, 1), grad_out.view(n, 1, c)).view(n * 8, c)
+        # Outer product per point; a broadcast multiply is ~3x faster than bmm of 8x1 by 1xC matrices.
+        contrib = (w.unsqueeze(-1) * grad_out.unsqueeze(1)).view(n * 8, c)
         return _scatter_grad(table, idx.reshape(-1), contrib), None, None
 
 
@@ -176,6 +177,8 @@ class DenseGrid(nn.Module):
         self.tables = nn.ParameterList(
             [nn.Parameter(torch.randn(r**3, channels) * init_std) for r in self.resolutions]
         )
+        # Levels beyond this count output zeros (coarse-to-fine training; all levels by default).
+        self.active_levels = len(self.resolutions)
 
     @property
     def out_dim(self) -> int:
@@ -186,8 +189,12 @@ class DenseGrid(nn.Module):
         return sum(t.numel() for t in self.tables)
 
     def forward(self, u: Tensor) -> Tensor:
-        """``u``: ``[N, 3]`` in ``[0, 1]`` → ``[N, levels · channels]``."""
-        return torch.cat([grid_lookup(t, r, u) for t, r in zip(self.tables, self.resolutions)], dim=-1)
+        """``u``: ``[N, 3]`` in ``[0, 1]`` → ``[N, levels · channels]`` (zeros for inactive fine levels)."""
+        out = [grid_lookup(t, r, u) for t, r in zip(self.tables[: self.active_levels], self.resolutions)]
+        missing = len(self.resolutions) - len(out)
+        if missing:
+            out.append(u.new_zeros(u.shape[0], missing * self.channels))
+        return torch.cat(out, dim=-1)
 
     def total_variation(self, num_samples: int, generator: torch.Generator | None = None) -> Tensor:
         """Mean L2 norm of feature differences between neighbouring nodes (L_tv), on a random subset of

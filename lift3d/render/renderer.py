@@ -34,6 +34,10 @@ class SamplingConfig:
     """Uniform samples fed to each proposal level."""
     num_samples: int = 32
     """Samples per ray at which the full field is evaluated."""
+    proposal_anneal_steps: int = 300
+    """Steps over which proposal weights are annealed from flat (w^0) to sharp (w^1) before resampling:
+    an untrained proposal grid front-loads its weights and would otherwise lock samples (and the fog they
+    create) near the cameras."""
     head_weight_threshold: float = 1e-4
     """Colour/label decoders run only on samples whose weight exceeds this (0 = all samples)."""
     label_max_samples: int = 8
@@ -84,6 +88,7 @@ def render_rays(
     with_labels: bool = True,
     background: Tensor | None = None,
     generator: torch.Generator | None = None,
+    proposal_anneal: float = 1.0,
 ) -> RenderOutputs:
     """Render a batch of rays.
 
@@ -104,6 +109,8 @@ def render_rays(
         Also composite semantic and instance logits.
     background : Tensor, optional
         ``[R, 3]`` or ``[3]`` colour behind the ray (overrides ``cfg.background``).
+    proposal_anneal : float
+        Exponent in ``[0, 1]`` applied to proposal weights before resampling (1 = no annealing).
     """
     n_rays = origins.shape[0]
     spacing = "linear" if bounded else "lindisp"
@@ -126,7 +133,8 @@ def render_rays(
             w, _ = render_weights(sigma, deltas)
             prop_levels.append((s_edges, w))
             n_next = cfg.proposal_samples[level + 1] if level + 1 < len(proposals) else cfg.num_samples
-            s_edges = sample_pdf(s_edges, w, n_next, training, generator=generator)
+            w_resample = w if proposal_anneal >= 1.0 else w.detach().clamp_min(0) ** proposal_anneal
+            s_edges = sample_pdf(s_edges, w_resample, n_next, training, generator=generator)
     else:
         s_edges = uniform_edges(near, far, cfg.num_samples, spacing, training, generator)
 

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import numpy as np
 import torch
 from torch import Tensor, nn
 
@@ -33,8 +32,12 @@ class PanopticModel(nn.Module):
             [ProposalGrid(r, cfg.field.density_bias) for r in cfg.sampling.proposal_resolutions]
         )
         self.bounded = cfg.field.contraction == "none"
-        self.register_buffer("thing_channels", torch.as_tensor(labels.thing_channels()), persistent=False)
-        self.register_buffer("channel_category", torch.as_tensor(labels.channel_to_category()), persistent=False)
+        # Channels beyond the label space (a user asked for a larger U) map to void and are never chosen.
+        extra = max(0, cfg.field.num_semantic_classes - labels.num_channels)
+        things = torch.cat([torch.as_tensor(labels.thing_channels()), torch.zeros(extra, dtype=torch.bool)])
+        category = torch.cat([torch.as_tensor(labels.channel_to_category()), torch.zeros(extra, dtype=torch.long)])
+        self.register_buffer("thing_channels", things, persistent=False)
+        self.register_buffer("channel_category", category, persistent=False)
 
     @property
     def has_instances(self) -> bool:
@@ -53,10 +56,17 @@ class PanopticModel(nn.Module):
         return [p for p in self.parameters() if id(p) not in grid_ids]
 
     def render(self, origins: Tensor, dirs: Tensor, *, training: bool = False, with_labels: bool = True,
-               generator: torch.Generator | None = None) -> RenderOutputs:
+               generator: torch.Generator | None = None, proposal_anneal: float = 1.0) -> RenderOutputs:
         """Render a batch of normalised-space rays (with gradients); see :func:`render_rays`."""
         return render_rays(self.field, self.proposals, origins, dirs, self.cfg.sampling, bounded=self.bounded,
-                           training=training, with_labels=with_labels, generator=generator)
+                           training=training, with_labels=with_labels, generator=generator,
+                           proposal_anneal=proposal_anneal)
+
+    def forward(self, origins: Tensor, dirs: Tensor, training: bool = True, with_labels: bool = True,
+                generator: torch.Generator | None = None, proposal_anneal: float = 1.0) -> RenderOutputs:
+        """Same as :meth:`render`; the entry point DistributedDataParallel wraps."""
+        return self.render(origins, dirs, training=training, with_labels=with_labels, generator=generator,
+                           proposal_anneal=proposal_anneal)
 
     def render_chunked(self, origins: Tensor, dirs: Tensor, *, with_labels: bool = True,
                        chunk_size: int | None = None, progress: bool = False) -> dict[str, Tensor]:
@@ -83,8 +93,7 @@ class PanopticModel(nn.Module):
         confidence : Tensor
             ``[N]`` probability of the chosen class.
         """
-        p = sem_probs.clone()
-        p[:, 0] = -1.0
+        p = torch.where(self.channel_category > 0, sem_probs, torch.full_like(sem_probs, -1.0))
         conf, chan = p.max(-1)
         category = self.channel_category[chan]
         if inst_probs is None:
@@ -116,11 +125,3 @@ class PanopticModel(nn.Module):
 
 def count_parameters(model: nn.Module) -> int:
     return int(sum(p.numel() for p in model.parameters()))
-
-
-def channel_names(labels: LabelSpace, categories: dict[int, str]) -> list[str]:
-    return ["void"] + [categories.get(c, f"class_{c}") for c in labels.semantic_ids]
-
-
-def as_numpy(x: Tensor) -> np.ndarray:
-    return x.detach().cpu().numpy()
