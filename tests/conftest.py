@@ -60,3 +60,8 @@ def tiny_scene(tmp_path: Path) -> Path:
         instance = np.select([semantic == 3, semantic == 4], [11, 12], 0)
         writer.write_gt_points(rng.uniform(-1, 1, (50, 3)), semantic=semantic, instance=instance)
     return root
+
+
+# tests/helpers holds scripts that tests launch in subprocesses (e.g. with torchrun); they are not test
+# modules and must not be imported (or doctest-collected) by pytest itself.
+collect_ignore = ["helpers"]

@@ -102,7 +102,7 @@ def test_exploding_learning_rate_is_detected_and_checkpoint_kept(tiny_indoor, tm
     from lift3d.errors import TrainingDiverged
 
     overrides = json.loads(json.dumps(TINY))
-    overrides["optim"].update(steps=60, lr_grid=1e12, lr_mlp=1e12, max_bad_steps=3, warmup_steps=1)
+    overrides["optim"].update(steps=60, lr_grid=1e30, lr_mlp=1e30, max_bad_steps=3, warmup_steps=1)
     overrides["trainer"].update(eval_every=0, checkpoint_every=1000)
     with pytest.raises(TrainingDiverged, match="not finite|non-finite"):
         train(tiny_indoor, preset="fast", output_dir=tmp_path, overrides=overrides, progress=False,
@@ -111,3 +111,24 @@ def test_exploding_learning_rate_is_detected_and_checkpoint_kept(tiny_indoor, tm
     for ckpt in tmp_path.rglob("step-*.pt"):
         state = torch.load(ckpt, weights_only=False)
         assert all(torch.isfinite(v).all() for v in state["model"].values() if v.is_floating_point())
+
+
+def test_cli_trains_several_scenes_from_a_list_file(tiny_indoor, tmp_path, capsys):
+    from lift3d.cli.main import main
+
+    listing = tmp_path / "scenes.txt"
+    listing.write_text(f"# two scenes, one missing from disk is an error\n{tiny_indoor}\n\n{tiny_indoor}\n")
+    args = ["train", "--data", str(listing), "--output-dir", str(tmp_path / "runs"), "--quiet", "--steps", "3",
+            "--trainer.eval-every", "0", "--trainer.checkpoint-every", "0", "--data.images-per-batch", "2"]
+    assert main(args) == 0
+    runs = sorted((tmp_path / "runs" / tiny_indoor.name / "fast").iterdir())
+    assert len(runs) == 2  # the same scene twice: two run folders, nothing overwritten
+    assert all((r / "checkpoints").is_dir() for r in runs)
+    # A job array picks one scene; an index past the end is a one-line error.
+    assert main(args + ["--scene-index", "1"]) == 0
+    assert len(list((tmp_path / "runs" / tiny_indoor.name / "fast").iterdir())) == 3
+    assert main(args + ["--scene-index", "2"]) == 2
+    assert "--scene-index" in capsys.readouterr().err
+    listing.write_text("does_not_exist\n")
+    assert main(args) == 2
+    assert "scenes.txt" in capsys.readouterr().err

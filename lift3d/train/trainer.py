@@ -10,6 +10,7 @@ Typical use::
 from __future__ import annotations
 
 import math
+import os
 import random
 import time
 from dataclasses import dataclass, field
@@ -27,6 +28,7 @@ from lift3d.render.images import render_frame
 from lift3d.render.rays import RayGenerator
 from lift3d.train.config import Config, config_from_dict, load_config, load_yaml, save_config
 from lift3d.train.data import LabelSpace, TrainingData
+from lift3d.train.distributed import DistContext, all_ranks_agree, broadcast_object, init_distributed, shutdown
 from lift3d.train.losses import (
     charbonnier_loss,
     disparity_loss,
@@ -71,9 +73,10 @@ def resolve_label_sizes(cfg: Config, data: TrainingData) -> None:
     labels = data.labels
     if cfg.field.num_semantic_classes <= 0:
         cfg.field.num_semantic_classes = labels.num_channels
-    elif cfg.field.num_semantic_classes != labels.num_channels:
+    elif cfg.field.num_semantic_classes < labels.num_channels:
         raise InputError("--field.num-semantic-classes",
-                         f"the labels use {labels.num_channels - 1} categories (+ void = {labels.num_channels})")
+                         f"the labels use {labels.num_channels - 1} categories (+ void = {labels.num_channels}); "
+                         f"U={cfg.field.num_semantic_classes} is too few")
     if not labels.thing_ids:
         cfg.field.num_instance_channels = 0
         why_v = "no thing classes in the labels: no instance head"
@@ -143,9 +146,20 @@ class TrainResult:
     summary: dict[str, Any] = field(default_factory=dict)
 
 
-def _lr_factor(step: int, cfg: Config) -> float:
+def training_progress(step: int, cfg: Config, elapsed: float = 0.0) -> float:
+    """Fraction of training done, in [0, 1]. With a time budget it is whichever is further along, steps or
+    wall time, so runs compared at equal wall time all go through their whole schedule (learning rate,
+    when L_seg starts, coarse-to-fine levels)."""
+    progress = step / max(1, cfg.optim.steps)
+    if cfg.trainer.time_budget > 0:
+        progress = max(progress, elapsed / cfg.trainer.time_budget)
+    return min(1.0, progress)
+
+
+def _lr_factor(step: int, cfg: Config, elapsed: float = 0.0) -> float:
+    """Linear warm-up, then exponential decay to ``lr_final_factor`` at the end of training."""
     warm = min(1.0, (step + 1) / max(1, cfg.optim.warmup_steps))
-    return warm * cfg.optim.lr_final_factor ** (min(step, cfg.optim.steps) / max(1, cfg.optim.steps))
+    return warm * cfg.optim.lr_final_factor ** training_progress(step, cfg, elapsed)
 
 
 def _peak_rss_mb() -> float:
@@ -163,14 +177,26 @@ class Trainer:
     """Owns the model, optimiser, data and run folder of one training run."""
 
     def __init__(self, scene: Scene, cfg: Config, norm: SceneNormalization, run: RunFolder,
-                 device: torch.device, progress: bool = True, labels: LabelSpace | None = None):
+                 device: torch.device, progress: bool = True, labels: LabelSpace | None = None,
+                 dist_ctx: DistContext | None = None):
         self.scene, self.cfg, self.norm, self.run, self.device = scene, cfg, norm, run, device
-        self.progress = progress
+        self.ctx = dist_ctx or DistContext()
+        self.progress = progress and self.ctx.is_main
         self.rays = RayGenerator(scene.cameras, norm.c2w_normalized(scene.cameras.c2w), device)
-        self.data = TrainingData(scene, scene.split("train"), self.rays, labels, progress=progress)
+        self.data = TrainingData(scene, scene.split("train"), self.rays, labels, progress=self.progress)
         resolve_label_sizes(cfg, self.data)
         self.model = PanopticModel(cfg, self.data.labels).to(device)
         self.model.train()
+        # Under DDP gradients must pass through autograd's accumulation hooks (see field.grids).
+        grids.ACCUMULATE_GRAD_IN_PLACE = not self.ctx.enabled
+        self.forward_model: torch.nn.Module = self.model
+        if self.ctx.enabled:
+            from torch.nn.parallel import DistributedDataParallel
+
+            self.forward_model = DistributedDataParallel(
+                self.model, device_ids=[device.index] if device.type == "cuda" else None)
+        # Each rank draws its share of the images of a step.
+        self.images_per_rank = max(1, cfg.data.images_per_batch // self.ctx.world_size)
         fused = device.type in ("cpu", "cuda")
         self.optimizer = torch.optim.Adam(
             [
@@ -180,8 +206,10 @@ class Trainer:
             betas=(0.9, 0.99),
             fused=fused,
         )
-        self.generator = torch.Generator().manual_seed(cfg.trainer.seed)
+        self.generator = torch.Generator().manual_seed(cfg.trainer.seed + 1000003 * self.ctx.rank)
         self.step = 0
+        self.train_seconds = 0.0  # training time before this process (resumed runs)
+        self._fit_start: float | None = None
         self.perceptual = None
         if cfg.losses.feature > 0 and cfg.data.patch_size > 0:
             from lift3d.train.perceptual import build_perceptual_prior
@@ -200,6 +228,7 @@ class Trainer:
             "model": self.model.state_dict(),
             "optimizer": self.optimizer.state_dict(),
             "step": self.step,
+            "train_seconds": self.elapsed(),
             "config": self.cfg.to_dict(),
             "labels": self.data.labels.to_dict(),
             "normalization": self.norm.to_json(),
@@ -220,6 +249,7 @@ class Trainer:
         self.model.load_state_dict(state["model"])
         self.optimizer.load_state_dict(state["optimizer"])
         self.step = int(state["step"])
+        self.train_seconds = float(state.get("train_seconds", 0.0))
         if "rng" in state:
             self.generator.set_state(state["rng"]["torch"])
             torch.set_rng_state(state["rng"]["cpu"])
@@ -228,7 +258,11 @@ class Trainer:
     def losses(self, batch) -> dict[str, torch.Tensor]:
         cfg = self.cfg.losses
         with_labels = cfg.semantic > 0 or cfg.instance > 0 or cfg.segment > 0
-        out = self.model.render(batch.origins, batch.dirs, training=True, with_labels=with_labels, generator=self.generator)
+        self._set_active_levels()
+        anneal_steps = self.cfg.sampling.proposal_anneal_steps
+        anneal = min(1.0, self.step / anneal_steps) if anneal_steps > 0 else 1.0
+        out = self.forward_model(batch.origins, batch.dirs, training=True, with_labels=with_labels,
+                                 generator=self.generator, proposal_anneal=anneal)
         conf = batch.confidence if cfg.use_confidence else None
         terms: dict[str, torch.Tensor] = {"color": charbonnier_loss(out.rgb, batch.rgb, cfg.charbonnier_eps)}
         if len(self.model.proposals):
@@ -237,7 +271,7 @@ class Trainer:
             terms["semantic"] = semantic_loss(out.semantic, batch.semantic, conf)
         if cfg.instance > 0 and out.instance is not None:
             terms["instance"] = instance_loss(out.instance, batch.instance, batch.image, conf)
-        if cfg.segment > 0 and self.step >= cfg.segment_start * self.cfg.optim.steps:
+        if cfg.segment > 0 and training_progress(self.step, self.cfg, self.elapsed()) >= cfg.segment_start:
             groups = segment_groups(batch.image, batch.segment, cfg.segment_min_rays)
             terms["segment"] = segment_consistency_loss(out.semantic, groups, conf)
         if self.perceptual is not None and batch.n_patch_rays > 0:
@@ -261,18 +295,36 @@ class Trainer:
             terms["psnr"] = -10.0 * torch.log10(mse.clamp_min(1e-10))
         return terms
 
+    def elapsed(self) -> float:
+        """Seconds of training so far (including earlier processes of a resumed run)."""
+        now = time.perf_counter() - self._fit_start if self._fit_start is not None else 0.0
+        return self.train_seconds + now
+
+    def _set_active_levels(self) -> None:
+        """Coarse-to-fine: the geometry grid's level ``l`` switches on at ``l/(L-1)`` of the schedule."""
+        grid = getattr(self.model.field, "grid", None)
+        if grid is None:
+            return
+        levels = len(grid.resolutions)
+        frac = self.cfg.field.coarse_to_fine
+        if frac <= 0 or levels == 1:
+            grid.active_levels = levels
+            return
+        progress = training_progress(self.step, self.cfg, self.elapsed()) / frac
+        grid.active_levels = int(min(levels, 1 + math.floor(progress * (levels - 1))))
+
     def train_step(self) -> dict[str, float] | None:
         """One optimisation step; None when the loss was not finite (the step is skipped)."""
         d = self.cfg.data
-        batch = self.data.sample(d.images_per_batch, d.rays_per_image, d.patch_size, self.generator)
-        factor = _lr_factor(self.step, self.cfg)
+        batch = self.data.sample(self.images_per_rank, d.rays_per_image, d.patch_size, self.generator)
+        factor = _lr_factor(self.step, self.cfg, self.elapsed())
         for group in self.optimizer.param_groups:
             group["lr"] = group["base_lr"] * factor
         # Keep gradient buffers allocated: the grid lookups add into them in place (see field.grids).
         self.optimizer.zero_grad(set_to_none=False)
         terms = self.losses(batch)
         total = terms["total"]
-        if not bool(torch.isfinite(total)):
+        if not all_ranks_agree(bool(torch.isfinite(total)), self.ctx):
             self.optimizer.zero_grad(set_to_none=False)
             return None
         total.backward()
@@ -301,10 +353,20 @@ class Trainer:
         return {"psnr": float(np.mean(psnrs)), "miou": float(miou(ps, gs)["miou"]), "pq_scene": float(pq["pq"]),
                 "against": "gt" if use_gt else "pseudo_labels"}
 
+    def replicas_identical(self) -> bool:
+        """Every rank holds the same parameters (DDP keeps them in sync; checked once at the end)."""
+        import torch.distributed as dist
+
+        checksum = torch.stack([p.detach().double().sum() for p in self.model.parameters()]).cpu()
+        gathered = [torch.zeros_like(checksum) for _ in range(self.ctx.world_size)]
+        dist.all_gather(gathered, checksum)
+        return all(torch.equal(g, gathered[0]) for g in gathered)
+
     # ---------------------------------------------------------------- the loop
     def fit(self) -> TrainResult:
         cfg = self.cfg
         start = time.perf_counter()
+        self._fit_start = start
         bad = 0
         last: dict[str, float] = {}
         summary: dict[str, Any] = {}
@@ -326,24 +388,30 @@ class Trainer:
                 last = terms
                 self.step += 1
                 bar.update(1)
-                if self.step % max(1, cfg.trainer.log_every) == 0 or self.step == steps_total:
+                main = self.ctx.is_main
+                if main and (self.step % max(1, cfg.trainer.log_every) == 0 or self.step == steps_total):
                     bar.set_postfix(loss=f"{terms['total']:.4f}", psnr=f"{terms['psnr']:.2f}")
                     self.run.append_log({"step": self.step, "time": time.perf_counter() - start, **terms})
-                if cfg.trainer.eval_every and self.step % cfg.trainer.eval_every == 0 and self.step < steps_total:
+                if main and cfg.trainer.eval_every and self.step % cfg.trainer.eval_every == 0 and self.step < steps_total:
                     ev = self.evaluate()
                     self.run.append_log({"step": self.step, "time": time.perf_counter() - start, "eval": ev})
-                if cfg.trainer.checkpoint_every and self.step % cfg.trainer.checkpoint_every == 0:
+                if main and cfg.trainer.checkpoint_every and self.step % cfg.trainer.checkpoint_every == 0:
                     self.save_checkpoint()
-                if cfg.trainer.time_budget and time.perf_counter() - start > cfg.trainer.time_budget:
+                over_budget = bool(cfg.trainer.time_budget) and self.elapsed() > cfg.trainer.time_budget
+                if not all_ranks_agree(not over_budget, self.ctx):  # every rank stops at the same step
                     summary["stopped_by_time_budget"] = True
                     break
         finally:
             bar.close()
         seconds = time.perf_counter() - start
-        self.save_checkpoint()
-        ev = self.evaluate()
-        self.run.append_log({"step": self.step, "time": seconds, "eval": ev, "final": True})
-        summary.update(steps=self.step, seconds=seconds, last=last, eval=ev)
+        ev: dict[str, Any] = {}
+        if self.ctx.enabled:
+            summary["replicas_identical"] = self.replicas_identical()
+        if self.ctx.is_main:
+            self.save_checkpoint()
+            ev = self.evaluate()
+            self.run.append_log({"step": self.step, "time": seconds, "eval": ev, "final": True})
+        summary.update(steps=self.step, seconds=seconds, last=last, eval=ev, world_size=self.ctx.world_size)
         return TrainResult(self.run, self.step, seconds, _peak_rss_mb(), summary)
 
 
@@ -378,6 +446,15 @@ def train(
         A run folder to continue from its newest checkpoint (its config.yml wins over preset/overrides,
         except ``optim.steps`` and ``trainer`` settings given in ``overrides``).
     """
+    ctx, device_name = init_distributed((overrides or {}).get("trainer", {}).get("device", "auto"))
+    try:
+        return _train(data, preset, output_dir, overrides, resume, progress, print_summary, ctx, device_name)
+    finally:
+        shutdown(ctx)
+
+
+def _train(data, preset, output_dir, overrides, resume, progress, print_summary, ctx: DistContext,
+           device_name: str) -> TrainResult:
     if resume is not None:
         run = RunFolder.open(resume)
         cfg = config_from_dict(load_yaml(run.config_path), str(run.config_path))
@@ -395,24 +472,36 @@ def train(
             raise InputError("--data", "a scene folder is required (or --resume RUN)")
         scene = load_scene(data)
         cfg, norm = resolve_config(scene, preset, overrides)
-        run = RunFolder.create(output_dir, scene.name, cfg.preset)
-    set_threads(cfg.trainer.threads or None)
+        # One run folder for the whole job: rank 0 makes it, the others are told where it is.
+        run_path = RunFolder.create(output_dir, scene.name, cfg.preset).path if ctx.is_main else None
+        run = RunFolder(Path(broadcast_object(str(run_path) if run_path else None, ctx)))
+    if ctx.enabled:
+        cfg.trainer.device = device_name
+    set_threads(cfg.trainer.threads or (None if not ctx.enabled else max(1, _cpu_share(ctx))))
     seed_everything(cfg.trainer.seed)
-    device = resolve_device(cfg.trainer.device)
-    grids.ACCUMULATE_GRAD_IN_PLACE = True
+    device = resolve_device(device_name if ctx.enabled else cfg.trainer.device)
     labels = LabelSpace.from_dict(cfg.scene["labels"]) if resume is not None and "labels" in cfg.scene else None
-    trainer = Trainer(scene, cfg, norm, run, device, progress=progress, labels=labels)
+    trainer = Trainer(scene, cfg, norm, run, device, progress=progress, labels=labels, dist_ctx=ctx)
     if resume is not None:
         trainer.restore(run.load_latest_checkpoint(map_location=device))
-    else:
+    elif ctx.is_main:
         save_config(cfg, run.config_path)
         norm.save(run.transform_path)
     result = trainer.fit()
-    save_config(cfg, run.config_path)
+    if ctx.is_main:
+        save_config(cfg, run.config_path)
     result.summary["parameters"] = count_parameters(trainer.model)
-    if print_summary:
+    if print_summary and ctx.is_main:
         print(format_summary(result, cfg))
     return result
+
+
+def _cpu_share(ctx: DistContext) -> int:
+    """CPU threads per rank when several ranks share one machine (avoid oversubscription)."""
+    from lift3d.utils.device import available_cpus
+
+    local_world = int(os.environ.get("LOCAL_WORLD_SIZE", ctx.world_size))
+    return max(1, available_cpus() // max(1, local_world))
 
 
 def format_summary(result: TrainResult, cfg: Config) -> str:
