@@ -51,6 +51,15 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def one_line(message: str) -> str:
+    """A message folded onto one line (YAML and torch errors span several).
+
+    >>> one_line("config.yml: not valid YAML (while parsing\\n  in line 1\\n)")
+    'config.yml: not valid YAML (while parsing | in line 1 | )'
+    """
+    return " | ".join(part.strip() for part in message.splitlines() if part.strip())
+
+
 def main(argv: list[str] | None = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
     parser = build_parser()
@@ -65,7 +74,15 @@ def main(argv: list[str] | None = None) -> int:
     except Lift3DError as exc:
         if debug:
             raise
-        print(f"lift3d {args.verb}: error: {exc}", file=sys.stderr)
+        print(f"lift3d {args.verb}: error: {one_line(str(exc))}", file=sys.stderr)
+        return 2
+    except OSError as exc:
+        # The environment, not a bug: a full disk, a read-only or vanished folder, a permission. Writers that
+        # know their file raise InputError; this is the net for the rest (e.g. appends to a log).
+        if debug:
+            raise
+        where = f"{exc.filename}: " if exc.filename else ""
+        print(f"lift3d {args.verb}: error: {where}{one_line(exc.strerror or str(exc))}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
         print(f"lift3d {args.verb}: interrupted", file=sys.stderr)

@@ -1,0 +1,39 @@
+"""`lift3d bench --quick`: the benchmark's smoke test (tiny scenes, few steps; every section and report)."""
+
+import csv
+import json
+import subprocess
+import sys
+
+import pytest
+
+
+@pytest.mark.slow
+def test_bench_quick_writes_every_report(tmp_path):
+    out = tmp_path / "bench"
+    cmd = [sys.executable, "-m", "lift3d", "bench", "--quick", "--scenes", "indoor", "--presets", "fast",
+           "--out", str(out), "--docs-dir", str(tmp_path / "docs")]
+    proc = subprocess.run(cmd, capture_output=True, text=True, timeout=1200,
+                          env={**__import__("os").environ, "LIFT3D_NO_PROGRESS": "1"})
+    assert proc.returncode == 0, proc.stderr[-3000:]
+    results = json.loads((out / "results.json").read_text())
+    assert results["machine"]["cpu"] and results["machine"]["torch_threads"] >= 1
+    runs = results["runs"]
+    assert {(r["noise"], r["preset"]) for r in runs} == {("moderate", "fast"), ("hard", "fast")}
+    for r in runs:
+        assert r["train_seconds"] > 0 and r["peak_rss_mb"] > 100 and r["render_ms_per_2048_rays"] > 0
+        assert 0 <= r["miou"] <= 1 and 0 <= r["pq_scene"] <= 1 and r["psnr"] > 5
+        assert r["pseudo_labels"]["miou"] is not None and r["points3d"]["fscore"] is not None
+    assert [r["variant"] for r in results["ablation"]] == ["base", "base+S", "base+S+L_seg", "base+S+L_feat", "all"]
+    assert {s["factor"] for s in results["scaling"]} == {"resolution", "views", "instance_channels", "classes"}
+    rows = list(csv.DictReader((out / "results.csv").open()))
+    assert len(rows) == len(runs) + len(results["ablation"])
+    for name in ("pareto.png", "scaling.png", "benchmarks.md"):
+        assert (out / name).is_file()
+    md = (tmp_path / "docs" / "benchmarks.md").read_text()
+    assert results["machine"]["cpu"] in md and "| indoor | hard | fast |" in md
+    # Resumable: a second run reuses every cached measurement (fast, same numbers).
+    proc2 = subprocess.run(cmd, capture_output=True, text=True, timeout=300)
+    assert proc2.returncode == 0
+    again = json.loads((out / "results.json").read_text())
+    assert [r["train_seconds"] for r in again["runs"]] == [r["train_seconds"] for r in runs]
