@@ -5,7 +5,7 @@ How the surface is found
 ------------------------
 *Threshold.* The surface is the isosurface ``σ = τ`` of the density. :func:`choose_density_threshold`
 picks ``τ`` so that the isosurface agrees with what volume rendering says the training cameras see: along
-2048 random training-camera rays the density is sampled at 256 uniform steps; per ray, the *rendered
+1024 random training-camera rays the density is sampled at 256 uniform steps; per ray, the *rendered
 surface* is where the accumulated opacity reaches 0.5 (the median depth), and for each candidate ``τ`` the
 *isosurface hit* is the first sample with ``σ ≥ τ``. The chosen ``τ`` minimises the mean distance between
 the two (in samples, capped at 8), taking the geometric middle of the near-optimal range (within 0.25
@@ -116,7 +116,7 @@ def train_frames(scene) -> np.ndarray:
 
 
 # ------------------------------------------------------------------------------------------ threshold
-def choose_density_threshold(loaded, scene, *, n_rays: int = 2048, n_samples: int = 256, seed: int = 0,
+def choose_density_threshold(loaded, scene, *, n_rays: int = 1024, n_samples: int = 256, seed: int = 0,
                              voxel: float | None = None) -> tuple[float, dict[str, Any]]:
     """The density ``τ`` whose isosurface best matches the rendered surface of training rays.
 
