@@ -46,6 +46,8 @@ from typing import Any
 
 import numpy as np
 
+from lift3d.field.encodings import uncontract
+
 #: Far background beyond this ∞-norm radius (normalised units; the foreground box is radius 1) is skipped
 #: in unbounded scenes: contracted space squeezes it into a thin shell where the isosurface is unreliable.
 UNBOUNDED_MAX_RADIUS = 4.0
@@ -56,32 +58,6 @@ REFINE_FACTOR = 4.0
 
 
 # ------------------------------------------------------------------------------------------ contraction
-def uncontract(g: np.ndarray, kind: str) -> np.ndarray:
-    """Inverse of :func:`lift3d.field.encodings.contract`: contracted points → normalised points.
-
-    Points on or beyond the contracted boundary (radius 2) map to ``inf``.
-
-    Examples
-    --------
-    >>> uncontract(np.array([[0.5, 0.0, 0.0], [1.75, 0.0, 0.0]]), "linf").tolist()
-    [[0.5, 0.0, 0.0], [4.0, 0.0, 0.0]]
-    """
-    g = np.asarray(g, np.float64)
-    if kind == "none":
-        return g
-    if kind == "linf":
-        n = np.abs(g).max(-1, keepdims=True)
-    elif kind == "l2":
-        n = np.linalg.norm(g, axis=-1, keepdims=True)
-    else:
-        raise ValueError(f"unknown contraction {kind!r}")
-    with np.errstate(divide="ignore", invalid="ignore"):
-        # contract: c = x (2 - 1/m) / m with m = |x|  ⇒  |c| = 2 - 1/m  ⇒  m = 1 / (2 - |c|),  x = c m / |c|.
-        far = np.where(n >= 2.0, np.inf, 1.0 / (2.0 - n)) / np.maximum(n, 1e-12)
-        scale = np.where(n <= 1.0, 1.0, far)
-        return g * scale
-
-
 def contracted_radius(radius: float, kind: str) -> float:
     """Norm of the contracted image of a point at normalised norm ``radius`` (``2 - 1/r`` beyond 1)."""
     if kind == "none" or radius <= 1.0:

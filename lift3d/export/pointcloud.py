@@ -285,7 +285,8 @@ def _surface_points(loaded, scene, num_points: int, density_threshold, progress:
     """Area-uniform samples on the seen part of the isosurface, labelled by the heads."""
     from lift3d.export.instances import query_point_labels
     from lift3d.export.mesh import (CameraVisibility, choose_density_threshold, field_isosurface, normalized_cameras,
-                                    train_frames, uncontract, view_directions)
+                                    train_frames, view_directions)
+    from lift3d.field.encodings import uncontract
 
     model = loaded.model
     t = time.perf_counter()

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import math
 
+import numpy as np
 import torch
 from torch import Tensor
 
@@ -43,6 +44,33 @@ def contract(x: Tensor, kind: str = "linf") -> Tensor:
         scale = torch.where(n <= 1.0, torch.ones_like(n), (2.0 - 1.0 / n) / n)
         return x * scale
     raise ValueError(f"unknown contraction {kind!r}")
+
+
+def uncontract(g: np.ndarray, kind: str) -> np.ndarray:
+    """Inverse of :func:`contract` (numpy, float64): contracted points → normalised points.
+
+    Points on or beyond the contracted boundary (radius 2) map to ``inf``.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> uncontract(np.array([[0.5, 0.0, 0.0], [1.75, 0.0, 0.0]]), "linf").tolist()
+    [[0.5, 0.0, 0.0], [4.0, 0.0, 0.0]]
+    """
+    g = np.asarray(g, np.float64)
+    if kind == "none":
+        return g
+    if kind == "linf":
+        n = np.abs(g).max(-1, keepdims=True)
+    elif kind == "l2":
+        n = np.linalg.norm(g, axis=-1, keepdims=True)
+    else:
+        raise ValueError(f"unknown contraction {kind!r}")
+    with np.errstate(divide="ignore", invalid="ignore"):
+        # contract: c = x (2 - 1/m) / m with m = |x|  ⇒  |c| = 2 - 1/m  ⇒  m = 1 / (2 - |c|),  x = c m / |c|.
+        far = np.where(n >= 2.0, np.inf, 1.0 / (2.0 - n)) / np.maximum(n, 1e-12)
+        scale = np.where(n <= 1.0, 1.0, far)
+        return g * scale
 
 
 def positional_encoding(x: Tensor, num_frequencies: int, include_input: bool = True) -> Tensor:

@@ -19,7 +19,8 @@ import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
 
-from lift3d.field.encodings import contract, positional_encoding, positional_encoding_dim, spherical_harmonics
+from lift3d.field.encodings import (contract, positional_encoding, positional_encoding_dim, spherical_harmonics,
+                                    uncontract)
 from lift3d.field.grids import DenseGrid, default_resolutions
 
 
@@ -78,6 +79,10 @@ class FieldConfig:
     """Shift before the exponential density activation. Space starts *opaque* (σ ≈ e² per unit) and free
     space is carved out: starting transparent with a black background, the colour decoder saturates
     towards white to explain bright pixels through thin fog and gets stuck there (measured: 16 dB)."""
+    observed_resolution: int = 64
+    """Cells of an R³ lattice over the grid's space that no training camera sees get zero density (as
+    instant-NGP marks untrained cells): space behind every camera gets no gradient, keeps its opaque initial
+    density and would fog novel views and the export. 0 disables."""
     mlp_width: int = 256
     """Base (``kind=mlp``): trunk width."""
     mlp_depth: int = 6
@@ -128,6 +133,8 @@ class SceneSpace(nn.Module):
         super().__init__()
         self.contraction = contraction
         self.extent = 1.0 if contraction == "none" else 2.0
+        # [R, R, R] bool over grid coordinates (index order x, y, z); empty = every cell observed.
+        self.register_buffer("observed", torch.ones(0, 0, 0, dtype=torch.bool))
 
     def forward(self, x: Tensor) -> tuple[Tensor, Tensor]:
         """``x``: ``[N, 3]`` → ``u`` ``[N, 3]`` in ``[0, 1]``, ``valid`` ``[N]`` bool."""
@@ -137,7 +144,28 @@ class SceneSpace(nn.Module):
             valid = (u >= 0).all(-1) & (u <= 1).all(-1)
         else:
             valid = torch.isfinite(u).all(-1)
-        return torch.nan_to_num(u, nan=0.5).clamp(0.0, 1.0), valid
+        u = torch.nan_to_num(u, nan=0.5).clamp(0.0, 1.0)
+        if self.observed.numel():
+            r = self.observed.shape[0]
+            idx = (u * r).long().clamp_(0, r - 1)
+            valid = valid & self.observed[idx[:, 0], idx[:, 1], idx[:, 2]]
+        return u, valid
+
+    def cell_centers(self, resolution: int) -> Tensor:
+        """``[R, R, R, 3]`` normalised scene points at the centres of an R³ lattice of grid space
+        (uncontracted; ``inf`` for cells the contraction never reaches, the cube's corners with ``l2``)."""
+        g = (torch.arange(resolution, dtype=torch.float64) + 0.5) / resolution * 2.0 - 1.0
+        c = torch.stack(torch.meshgrid(g, g, g, indexing="ij"), -1) * self.extent
+        return torch.from_numpy(uncontract(c.numpy(), self.contraction))
+
+    def _load_from_state_dict(self, state_dict, prefix, *args, **kwargs):
+        # The lattice's size is data, not architecture: take the checkpoint's (older checkpoints have none).
+        key = prefix + "observed"
+        if key in state_dict:
+            self.observed = state_dict[key].to(torch.bool).clone()
+        else:
+            state_dict[key] = self.observed
+        super()._load_from_state_dict(state_dict, prefix, *args, **kwargs)
 
 
 class ProposalGrid(nn.Module):

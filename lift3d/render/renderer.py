@@ -44,6 +44,11 @@ class SamplingConfig:
     """Semantic/instance decoders run on at most this many highest-weight samples per ray (0 = no cap).
     Once geometry has formed, a ray's weight sits on a few samples; before that, the cap keeps the wide
     label decoders from running on every sample."""
+    near_gradient_distance: float = 0.5
+    """Gradients of density and colour at a sample at distance ``t`` from its camera are scaled by
+    ``min(1, (t / d)^2)`` (Philip & Deschaintre 2023, "Floaters No More"): space close to a camera is
+    sampled far more densely per volume than the scene, so it over-learns and grows floaters that fog nearby
+    novel views. Normalised units; 0 disables."""
     background: str = "black"
     """Colour behind the last sample: ``black``, ``white`` or ``random`` (training only; black at test)."""
     chunk_size: int = 4096
@@ -141,6 +146,10 @@ def render_rays(
     x, t_mid, deltas = points(s_edges)
     n_samples = t_mid.shape[1]
     sigma, geo, u = field.geometry(x)
+    if training and cfg.near_gradient_distance > 0:
+        near_scale = (t_mid.detach() / cfg.near_gradient_distance).square().clamp(max=1.0).reshape(-1)
+        sigma = scale_gradient(sigma, near_scale)
+        geo = scale_gradient(geo, near_scale[:, None])
     weights, _ = render_weights(sigma.view(n_rays, n_samples), deltas)
 
     # Decoders only where the sample matters (weights are constants for this choice).
@@ -179,6 +188,31 @@ def render_rays(
     depth = (weights * t_mid).sum(-1)
     return RenderOutputs(rgb=rgb, depth=depth, opacity=opacity, semantic=semantic, instance=instance,
                          weights=weights, t_mid=t_mid, distill=distill)
+
+
+class _ScaleGradient(torch.autograd.Function):
+    @staticmethod
+    def forward(ctx, x: Tensor, scale: Tensor) -> Tensor:  # type: ignore[override]
+        ctx.save_for_backward(scale)
+        return x.view_as(x)
+
+    @staticmethod
+    def backward(ctx, grad: Tensor):  # type: ignore[override]
+        (scale,) = ctx.saved_tensors
+        return grad * scale, None
+
+
+def scale_gradient(x: Tensor, scale: Tensor) -> Tensor:
+    """``x`` unchanged in the forward pass; its gradient multiplied by ``scale`` (broadcastable to ``x``).
+
+    Examples
+    --------
+    >>> x = torch.ones(3, requires_grad=True)
+    >>> scale_gradient(x, torch.tensor([0.0, 0.5, 1.0])).sum().backward()
+    >>> x.grad.tolist()
+    [0.0, 0.5, 1.0]
+    """
+    return _ScaleGradient.apply(x, scale)
 
 
 def _label_samples(weights: Tensor, cfg: SamplingConfig) -> Tensor:

@@ -13,7 +13,7 @@ import math
 import os
 import random
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -39,6 +39,7 @@ from lift3d.train.losses import (
     semantic_loss,
 )
 from lift3d.train.model import PanopticModel, count_parameters
+from lift3d.train.observed import observed_cells
 from lift3d.train.normalization import SceneNormalization, derive_grid_resolution, infer_normalization
 from lift3d.train.run import RunFolder
 from lift3d.utils.device import resolve_device, set_threads
@@ -186,6 +187,11 @@ class Trainer:
         self.data = TrainingData(scene, scene.split("train"), self.rays, labels, progress=self.progress)
         resolve_label_sizes(cfg, self.data)
         self.model = PanopticModel(cfg, self.data.labels).to(device)
+        if cfg.field.observed_resolution > 0:  # (a resumed run loads its own lattice with the checkpoint)
+            cams = replace(scene.cameras, c2w=norm.c2w_normalized(scene.cameras.c2w))
+            self.model.field.space.observed = observed_cells(
+                self.model.field.space, cams, scene.split("train"), cfg.field.observed_resolution,
+                near=cfg.sampling.near_plane).to(device)
         self.model.train()
         # Under DDP gradients must pass through autograd's accumulation hooks (see field.grids).
         grids.ACCUMULATE_GRAD_IN_PLACE = not self.ctx.enabled
@@ -472,12 +478,15 @@ def _train(data, preset, output_dir, overrides, resume, progress, print_summary,
             raise InputError("--data", "a scene folder is required (or --resume RUN)")
         scene = load_scene(data)
         cfg, norm = resolve_config(scene, preset, overrides)
+        resolve_device(device_name if ctx.enabled else cfg.trainer.device)  # a bad --device leaves no empty run
         # One run folder for the whole job: rank 0 makes it, the others are told where it is.
         run_path = RunFolder.create(output_dir, scene.name, cfg.preset).path if ctx.is_main else None
         run = RunFolder(Path(broadcast_object(str(run_path) if run_path else None, ctx)))
     if ctx.enabled:
         cfg.trainer.device = device_name
-    set_threads(cfg.trainer.threads or (None if not ctx.enabled else max(1, _cpu_share(ctx))))
+    # Ranks sharing a machine split its CPUs, unless the user chose (trainer.threads or LIFT3D_THREADS).
+    share = ctx.enabled and not os.environ.get("LIFT3D_THREADS")
+    set_threads(cfg.trainer.threads or (max(1, _cpu_share(ctx)) if share else None))
     seed_everything(cfg.trainer.seed)
     device = resolve_device(device_name if ctx.enabled else cfg.trainer.device)
     labels = LabelSpace.from_dict(cfg.scene["labels"]) if resume is not None and "labels" in cfg.scene else None

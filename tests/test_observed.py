@@ -1,0 +1,62 @@
+"""Space no training camera sees has zero density (lift3d.train.observed + SceneSpace.observed)."""
+
+import numpy as np
+import pytest
+import torch
+
+from lift3d.data.cameras import Cameras, look_at
+from lift3d.field.field import FieldConfig, PanopticField, SceneSpace
+from lift3d.train.observed import observed_cells
+
+
+def one_camera(eye, target):
+    return Cameras(c2w=look_at(np.asarray(eye, float), np.asarray(target, float))[None],
+                   fx=np.array([16.0]), fy=np.array([16.0]), cx=np.array([16.0]), cy=np.array([16.0]),
+                   width=np.array([32]), height=np.array([32]))
+
+
+def test_cells_behind_the_only_camera_are_unobserved():
+    cams = one_camera([0.0, -0.5, 0.0], [0.0, 1.0, 0.0])  # at y = -0.5, looking along +y (90° field of view)
+    space = SceneSpace("none")
+    mask = observed_cells(space, cams, [0], 16, near=0.05, dilate=0)
+    centers = space.cell_centers(16).numpy()
+    y = centers[..., 1]
+    assert not mask[torch.from_numpy(y < -0.55)].any()  # behind the camera
+    ahead = (y > 0.5) & (np.abs(centers[..., 0]) < 0.5) & (np.abs(centers[..., 2]) < 0.5)
+    assert mask[torch.from_numpy(ahead)].all()  # well inside the frustum
+    assert 0.1 < mask.float().mean() < 0.6
+    # Dilation only ever adds cells.
+    dilated = observed_cells(space, cams, [0], 16, near=0.05, dilate=1)
+    assert (dilated | mask).equal(dilated) and dilated.sum() > mask.sum()
+
+
+def test_unobserved_cells_have_zero_density_and_survive_a_checkpoint():
+    cfg = FieldConfig(grid_max_resolution=16, grid_min_resolution=8, num_semantic_classes=3, num_instance_channels=0,
+                      contraction="none", head_hidden_dim=8)
+    field = PanopticField(cfg)
+    behind, ahead = torch.tensor([[0.0, -0.9, 0.0]]), torch.tensor([[0.0, 0.5, 0.0]])
+    assert field.geometry(behind)[0].item() > 0  # the opaque start
+    cams = one_camera([0.0, -0.5, 0.0], [0.0, 1.0, 0.0])
+    field.space.observed = observed_cells(field.space, cams, [0], 16, near=0.05)
+    assert field.geometry(behind)[0].item() == 0.0 and field.geometry(ahead)[0].item() > 0
+    # The lattice is part of the state: a fresh field loads it; a checkpoint without it means "all observed".
+    fresh = PanopticField(cfg)
+    fresh.load_state_dict(field.state_dict())
+    assert fresh.geometry(behind)[0].item() == 0.0
+    old = {k: v for k, v in field.state_dict().items() if not k.endswith("observed")}
+    legacy = PanopticField(cfg)
+    legacy.load_state_dict(old)
+    assert legacy.geometry(behind)[0].item() > 0
+
+
+@pytest.mark.parametrize("contraction", ["linf", "l2"])
+def test_contracted_lattice_centres_map_back_to_their_cells(contraction):
+    space = SceneSpace(contraction)
+    x = space.cell_centers(8).reshape(-1, 3)
+    finite = torch.isfinite(x).all(-1)
+    # linf fills the cube; l2's ball leaves the cube's corner cells unreachable (infinitely far).
+    assert finite.all() if contraction == "linf" else 0.4 < finite.float().mean() < 1.0
+    u, valid = space(x[finite].float())
+    cells = ((u * 8).floor().long())
+    grid = torch.stack(torch.meshgrid(*[torch.arange(8)] * 3, indexing="ij"), -1).reshape(-1, 3)[finite]
+    assert valid.all() and torch.equal(cells, grid)
