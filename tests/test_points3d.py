@@ -143,3 +143,24 @@ def test_chunked_queries_match_one_query():
     np.testing.assert_array_equal(i1, i2)
     brute = np.sqrt(((q[:, None] - ref[None]) ** 2).sum(-1)).min(1)
     np.testing.assert_allclose(d1, brute)
+
+
+def test_instance_recall_counts_found_missing_and_merged_objects():
+    from lift3d.eval.points3d import points3d
+
+    rng = np.random.default_rng(0)
+    # Four objects of 600 points each on a floor of 2000 points; object 4 has only 100 points (not scored).
+    blobs = [rng.normal(c, 0.05, (n, 3)) for c, n in (((0, 0, 0), 600), ((1, 0, 0), 600), ((2, 0, 0), 600),
+                                                      ((3, 0, 0), 600), ((4, 0, 0), 100))]
+    floor = np.c_[rng.uniform(-1, 5, (2000, 2)), np.full(2000, -1.0)]
+    xyz = np.concatenate(blobs + [floor])
+    sem = np.r_[np.full(2500, 3), np.full(2000, 1)]
+    inst = np.r_[np.repeat([1, 2, 3, 4, 5], [600, 600, 600, 600, 100]), np.zeros(2000, int)]
+    perfect = points3d(xyz, sem, inst, xyz, sem, inst, things={3}, stuff={1})
+    assert perfect["instance_recall"] == 1.0 and perfect["n_instances"] == 4
+    # Drop object 1 from the prediction, merge objects 2 and 3 into one id, relabel object 4 (ids need not match).
+    keep = inst != 1
+    pred_inst = np.where(inst == 3, 2, np.where(inst == 4, 77, inst))[keep]
+    r = points3d(xyz[keep], sem[keep], pred_inst, xyz, sem, inst, things={3}, stuff={1})
+    # found: only object 4 (IoU 1); object 1 is missing, 2 and 3 share a prediction with IoU exactly 0.5.
+    assert r["n_instances"] == 4 and r["instance_recall"] == 0.25

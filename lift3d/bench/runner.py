@@ -148,7 +148,8 @@ def _record(res: dict, **tags) -> dict:
     for k in ("psnr", "miou", "pq_scene", "sq_scene", "rq_scene", "miou_strict", "pq_scene_strict",
               "sq_scene_strict", "rq_scene_strict"):
         rec[k] = m.get(k)
-    rec["points3d"] = {k: p3.get(k) for k in ("fscore", "miou", "pq", "chamfer", "accuracy", "completeness")}
+    rec["points3d"] = {k: p3.get(k) for k in ("fscore", "miou", "pq", "chamfer", "accuracy", "completeness",
+                                              "instance_recall")}
     pl = m.get("pseudo_labels") or {}
     rec["pseudo_labels"] = {k: pl.get(k) for k in ("miou", "pq_scene", "sq_scene", "rq_scene", "miou_strict",
                                                    "pq_scene_strict")}
@@ -234,8 +235,8 @@ def run_scaling(cfg: BenchConfig, cache: Path) -> list[dict]:
             over = _merge(over, {"field": {"num_semantic_classes": value}})
         scene = _scene(cfg, "indoor", 0, "moderate", n_views=views, width=res, height=res)
         spec = {"kind": "scaling", "scene": str(scene), "preset": cfg.presets[0], "overrides": over,
-                "output_dir": str(cfg.out / "runs" / "scaling"), "warmup": 3 if cfg.quick else 10,
-                "steps": 5 if cfg.quick else 20, "repeats": 3 if cfg.quick else 10}
+                "output_dir": str(cfg.out / "runs" / "scaling"), "warmup": 3 if cfg.quick else 5,
+                "steps": 5 if cfg.quick else 12, "repeats": 3 if cfg.quick else 7}
         res_ = _worker(spec, cache / f"scaling_{factor}_{value}.json")
         shown = res_["semantic_classes"] if factor == "classes" else value
         rows.append({"factor": factor, "value": shown, "step_ms": res_["step_ms"], "render_ms": res_["render_ms"],

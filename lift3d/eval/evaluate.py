@@ -356,7 +356,8 @@ def points3d_block(loaded, scene: Scene, num_points: int = 200_000, progress: bo
     dict or None
         ``miou pq sq rq`` (point labels, ``min_area`` 0), ``accuracy completeness chamfer`` (world units),
         ``precision recall fscore`` at ``tau`` (1 % of the GT bounding-box diagonal), ``tau``, ``n_pred``,
-        ``n_gt``, ``source`` (``export.surface`` or ``rendered_depth``), ``num_points`` (requested).
+        ``n_gt``, ``instance_recall`` (share of GT objects with ≥ 500 points found as one instance with point
+        IoU > 0.5) and ``n_instances``, ``source`` (``export.surface`` or ``rendered_depth``), ``num_points``.
     """
     gt = scene.gt_points()
     if gt is None:
@@ -366,7 +367,7 @@ def points3d_block(loaded, scene: Scene, num_points: int = 200_000, progress: bo
                  np.asarray(pts.instance).astype(np.int64), gt["xyz"], np.asarray(gt["semantic"]).astype(np.int64),
                  np.asarray(gt["instance"]).astype(np.int64), things=scene.thing_ids, stuff=scene.stuff_ids)
     keys = ("miou", "pq", "sq", "rq", "accuracy", "completeness", "chamfer", "precision", "recall", "fscore",
-            "tau", "n_pred", "n_gt")
+            "tau", "n_pred", "n_gt", "instance_recall", "n_instances")
     block = {k: r[k] for k in keys}
     block.update(source=source, num_points=int(num_points), min_area=0.0)
     return block

@@ -79,6 +79,7 @@ def points3d(
     things=None,
     stuff=None,
     min_area: float = 0.0,
+    min_instance_points: int = 500,
 ) -> dict:
     """Label and geometry metrics of a predicted labelled point cloud against GT points.
 
@@ -107,6 +108,8 @@ def points3d(
         present classes.
     min_area : float
         Class-area filter of ``miou`` and ``pq`` (0 = strict, the default).
+    min_instance_points : int
+        GT thing instances with at least this many GT points count for ``instance_recall``.
 
     Returns
     -------
@@ -118,8 +121,11 @@ def points3d(
         (fraction of predicted points within ``tau`` of the GT), ``recall``
         (fraction of GT points within ``tau`` of the prediction), ``fscore``
         (harmonic mean, 0 when both are 0), ``tau``, ``n_pred``, ``n_gt``,
-        ``things``, ``stuff``, and the full ``pq_detail`` / ``miou_detail``
-        dicts.  With an empty prediction: accuracy, completeness and chamfer
+        ``things``, ``stuff``, ``instance_recall`` (fraction of GT thing
+        instances with at least ``min_instance_points`` points that one
+        predicted instance covers with point IoU > 0.5, class-agnostic; NaN
+        when there is none) with ``n_instances`` (how many were scored), and
+        the full ``pq_detail`` / ``miou_detail`` dicts.  With an empty prediction: accuracy, completeness and chamfer
         are ``inf``; precision, recall, F-score, mIoU, PQ, SQ, RQ are 0 as
         long as the GT has a non-void class.
 
@@ -175,6 +181,7 @@ def points3d(
 
     mi = _miou(t_sem, gs, min_area=min_area, void=0)
     pq = _pq_scene(t_sem, t_inst, gs, gi, things_s, stuff_s, min_area=min_area, void=0)
+    found, scored = instance_recall(t_inst, gs, gi, things_s, min_points=min_instance_points)
     return {
         "miou": mi["miou"],
         "pq": pq["pq"],
@@ -191,9 +198,46 @@ def points3d(
         "n_gt": int(m),
         "things": sorted(things_s),
         "stuff": sorted(stuff_s),
+        "instance_recall": found / scored if scored else float("nan"),
+        "n_instances": scored,
         "pq_detail": pq,
         "miou_detail": mi,
     }
+
+
+def instance_recall(pred_inst, gt_sem, gt_inst, things, min_points: int = 500) -> tuple[int, int]:
+    """How many GT thing instances one predicted instance recovers (point IoU > 0.5), of how many scored.
+
+    Every array is per GT point: ``pred_inst`` is the instance id transferred from the prediction (0 =
+    none). A GT instance is a (class, id) pair of a thing class with at least ``min_points`` points; it is
+    found when some predicted id ``p`` ≠ 0 has ``|G ∩ P| / |G ∪ P| > 0.5`` over the GT points, where ``P``
+    is the set of GT points labelled ``p``. IoU > 0.5 makes the match unique, so no assignment is needed.
+
+    Examples
+    --------
+    >>> gs = np.array([3, 3, 3, 3, 4, 4]); gi = np.array([1, 1, 1, 1, 2, 2])
+    >>> instance_recall(np.array([7, 7, 7, 0, 9, 8]), gs, gi, things={3, 4}, min_points=2)
+    (1, 2)
+    """
+    pred_inst = np.asarray(pred_inst, dtype=np.int64)
+    gt_sem = np.asarray(gt_sem, dtype=np.int64)
+    gt_inst = np.asarray(gt_inst, dtype=np.int64)
+    on_thing = np.isin(gt_sem, list(things)) & (gt_inst != 0)
+    if not on_thing.any():
+        return 0, 0
+    keys, gt_id, gt_size = np.unique(np.stack([gt_sem[on_thing], gt_inst[on_thing]], 1), axis=0,
+                                     return_inverse=True, return_counts=True)
+    gt_id = gt_id.reshape(-1)
+    pred_ids, pred_of_point, pred_size = np.unique(pred_inst, return_inverse=True, return_counts=True)
+    pred_of_point = pred_of_point.reshape(-1)[on_thing]
+    # Intersections: how many points of each GT instance carry each predicted id.
+    pairs, inter = np.unique(np.stack([gt_id, pred_of_point], 1), axis=0, return_counts=True)
+    union = gt_size[pairs[:, 0]] + pred_size[pairs[:, 1]] - inter
+    hit = (inter / union > 0.5) & (pred_ids[pairs[:, 1]] != 0)
+    big = gt_size >= min_points
+    found = np.zeros(len(keys), dtype=bool)
+    found[pairs[hit, 0]] = True
+    return int((found & big).sum()), int(big.sum())
 
 
 def _default_classes(ps, pi, gs, gi, things, stuff):

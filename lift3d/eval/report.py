@@ -108,7 +108,8 @@ def format_eval_table(m: dict) -> str:
                      f"point mIoU {fmt(p.get('miou'))}, PQ {fmt(p.get('pq'))} (SQ {fmt(p.get('sq'))}, "
                      f"RQ {fmt(p.get('rq'))}) | accuracy {fmt(p.get('accuracy'))}, completeness "
                      f"{fmt(p.get('completeness'))}, Chamfer {fmt(p.get('chamfer'))}, F-score {fmt(p.get('fscore'))} "
-                     f"(P {fmt(p.get('precision'))}, R {fmt(p.get('recall'))})")
+                     f"(P {fmt(p.get('precision'))}, R {fmt(p.get('recall'))}) | objects found "
+                     f"{fmt(p.get('instance_recall'))} of {p.get('n_instances')}")
     t = m.get("render_timing")
     if t:
         th = t.get("threads")
