@@ -132,3 +132,13 @@ def test_cli_trains_several_scenes_from_a_list_file(tiny_indoor, tmp_path, capsy
     listing.write_text("does_not_exist\n")
     assert main(args) == 2
     assert "scenes.txt" in capsys.readouterr().err
+
+
+@pytest.mark.skipif(torch.cuda.is_available(), reason="needs a machine without a GPU")
+def test_unavailable_device_is_a_clear_error_and_leaves_no_run_folder(tiny_indoor, tmp_path):
+    from lift3d.errors import InputError
+
+    with pytest.raises(InputError, match="--device.*no GPU"):
+        train(tiny_indoor, preset="fast", output_dir=tmp_path / "runs", overrides={"trainer": {"device": "cuda"}},
+              progress=False, print_summary=False)
+    assert not (tmp_path / "runs").exists() or not list((tmp_path / "runs").rglob("*"))

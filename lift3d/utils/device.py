@@ -29,11 +29,22 @@ def resolve_device(name: str = "auto") -> torch.device:
 
 
 def available_cpus() -> int:
-    """CPUs this process may run on (cgroup/affinity aware)."""
+    """CPUs this process may run on: the affinity mask, capped by a cgroup v2 CPU quota (containers).
+
+    A container limited to 2 CPUs on a 64-core host still sees 64 cores in its affinity mask; starting 64
+    threads there makes every step many times slower, so the quota wins.
+    """
     try:
-        return len(os.sched_getaffinity(0))
+        n = len(os.sched_getaffinity(0))
     except AttributeError:  # macOS / Windows
-        return os.cpu_count() or 1
+        n = os.cpu_count() or 1
+    try:
+        quota, period = open("/sys/fs/cgroup/cpu.max").read().split()[:2]
+        if quota != "max":
+            n = min(n, max(1, -(-int(quota) // int(period))))  # ceil: 1.5 CPUs → 2 threads
+    except (OSError, ValueError):
+        pass
+    return n
 
 
 def set_threads(n: int | None = None) -> int:
