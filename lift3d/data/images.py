@@ -7,7 +7,14 @@
 
 from __future__ import annotations
 
+import contextlib
+import os
+import re
+import sys
+import tempfile
+import threading
 from pathlib import Path
+from typing import Iterator
 
 import cv2
 import numpy as np
@@ -47,13 +54,65 @@ def id_to_rgb(ids: np.ndarray) -> np.ndarray:
     return np.stack([ids % 256, (ids // 256) % 256, ids // 65536], -1).astype(np.uint8)
 
 
+_DECODE_LOCK = threading.Lock()
+# OpenCV's own log prefix: "[ WARN:0@0.055] global grfmt_png.cpp:793 readFromStreamOrBuffer ".
+_CV_LOG_PREFIX = re.compile(r"^\[\s*[A-Z]+:\d+@[\d.]+\]\s+(global\s+)?\S+:\d+\s+\S+\s+")
+
+
+@contextlib.contextmanager
+def _native_stderr_captured() -> Iterator[list[str]]:
+    """Collect what the C decoders print straight onto file descriptor 2 while decoding.
+
+    libpng (``libpng error: IHDR: CRC error``), libjpeg (``Corrupt JPEG data: ...``) and OpenCV's logger
+    (``[ WARN:0@0.1] global grfmt_png.cpp:793 ... PNG input buffer is incomplete``) write there directly,
+    which would break the CLI's one-line error on a corrupt file. The captured lines (prefixes stripped) are
+    returned in the yielded list once the block ends, so the caller can put them into its own message."""
+    lines: list[str] = []
+    with _DECODE_LOCK:
+        try:
+            sink = tempfile.TemporaryFile()
+        except OSError:  # no writable temp folder: decode without capturing rather than fail
+            yield lines
+            return
+        try:
+            saved = os.dup(2)
+        except OSError:  # no stderr at all (a daemon): nothing to capture
+            sink.close()
+            yield lines
+            return
+        try:
+            with contextlib.suppress(Exception):
+                sys.stderr.flush()  # Python's own pending output goes where it was meant to
+            os.dup2(sink.fileno(), 2)
+            yield lines
+        finally:
+            os.dup2(saved, 2)
+            os.close(saved)
+            sink.seek(0)
+            text = sink.read(4096).decode("utf-8", errors="replace")
+            sink.close()
+            for line in text.splitlines():
+                line = _CV_LOG_PREFIX.sub("", line.strip())
+                if line and line not in lines:
+                    lines.append(line)
+
+
 def _imread(path: Path, flags: int) -> np.ndarray:
     if not path.is_file():
         raise InputError(path, "file not found")
-    data = np.fromfile(str(path), dtype=np.uint8)
-    img = cv2.imdecode(data, flags) if data.size else None
+    try:
+        data = np.fromfile(str(path), dtype=np.uint8)
+    except OSError as exc:
+        raise InputError(path, f"cannot be read ({exc.strerror or exc})") from exc
+    with _native_stderr_captured() as diagnostics:
+        img = cv2.imdecode(data, flags) if data.size else None
+    detail = "; ".join(diagnostics)[:200]
     if img is None:
-        raise InputError(path, "not a readable image (corrupt or truncated?)")
+        what = "empty file" if not data.size else "corrupt or truncated?"
+        raise InputError(path, f"not a readable image ({what}{': ' + detail if detail else ''})")
+    if detail:
+        # Decoded, but the decoder had to patch over damage (typically a corrupt JPEG): say so once.
+        print(f"lift3d: warning: {path}: decoded with errors ({detail})", file=sys.stderr)
     return img
 
 
