@@ -18,12 +18,7 @@ import time
 from pathlib import Path
 
 from lift3d.utils.atomic import write_json_atomic
-
-
-def peak_rss_mb() -> float:
-    import resource
-
-    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
+from lift3d.utils.memory import peak_rss_mb
 
 
 def run_train(spec: dict) -> dict:
@@ -36,7 +31,7 @@ def run_train(spec: dict) -> dict:
     result = train(spec["scene"], preset=spec["preset"], output_dir=spec["output_dir"], overrides=overrides,
                    progress=bool(spec.get("progress", False)), print_summary=False)
     train_wall = time.perf_counter() - start
-    rss_train = peak_rss_mb()  # ru_maxrss only grows: read it before evaluation adds its own peak
+    rss_train = peak_rss_mb()  # the peak only grows: read it before evaluation adds its own
     metrics = evaluate_run(result.run.path, split="test", progress=False, num_points=int(spec.get("num_points", 200_000)),
                            timing_repeats=int(spec.get("timing_repeats", 10)))
     return json_safe({

@@ -41,6 +41,7 @@ from typing import Any
 import numpy as np
 
 from lift3d.errors import InputError
+from lift3d.utils.memory import peak_rss_mb
 
 #: Rays source: keep rays whose accumulated opacity exceeds this (nerfstudio's rule).
 RAY_OPACITY_THRESHOLD = 0.5
@@ -434,13 +435,3 @@ def benchmark_export(run_path, num_points: int = 1_000_000, output_dir=None) -> 
             "threads": torch.get_num_threads(), "stages": pts.stats.get("seconds", {})}
 
 
-def peak_rss_mb() -> float:
-    """Peak resident set size of this process in MiB."""
-    try:
-        import resource
-
-        return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0  # KiB on Linux
-    except ImportError:  # Windows
-        import psutil
-
-        return psutil.Process().memory_info().peak_wset / 2**20  # type: ignore[attr-defined]

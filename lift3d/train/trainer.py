@@ -43,6 +43,7 @@ from lift3d.train.observed import observed_cells
 from lift3d.train.normalization import SceneNormalization, derive_grid_resolution, infer_normalization
 from lift3d.train.run import RunFolder
 from lift3d.utils.device import resolve_device, set_threads
+from lift3d.utils.memory import peak_rss_mb
 from lift3d.utils.progress import progress_bar
 
 
@@ -161,17 +162,6 @@ def _lr_factor(step: int, cfg: Config, elapsed: float = 0.0) -> float:
     """Linear warm-up, then exponential decay to ``lr_final_factor`` at the end of training."""
     warm = min(1.0, (step + 1) / max(1, cfg.optim.warmup_steps))
     return warm * cfg.optim.lr_final_factor ** training_progress(step, cfg, elapsed)
-
-
-def _peak_rss_mb() -> float:
-    try:
-        import resource
-
-        return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0  # KiB on Linux
-    except ImportError:  # Windows
-        import psutil
-
-        return psutil.Process().memory_info().peak_wset / 2**20  # type: ignore[attr-defined]
 
 
 class Trainer:
@@ -418,7 +408,7 @@ class Trainer:
             ev = self.evaluate()
             self.run.append_log({"step": self.step, "time": seconds, "eval": ev, "final": True})
         summary.update(steps=self.step, seconds=seconds, last=last, eval=ev, world_size=self.ctx.world_size)
-        return TrainResult(self.run, self.step, seconds, _peak_rss_mb(), summary)
+        return TrainResult(self.run, self.step, seconds, peak_rss_mb(), summary)
 
 
 def seed_everything(seed: int) -> None:
