@@ -122,10 +122,13 @@ class RunFolder:
 
     def append_log(self, record: dict) -> None:
         """One JSON line per record; appended and flushed (a crash loses at most the line being written)."""
-        with open(self.log_path, "a", encoding="utf-8") as f:
-            f.write(json.dumps(record) + "\n")
-            f.flush()
-            os.fsync(f.fileno())
+        try:
+            with open(self.log_path, "a", encoding="utf-8") as f:
+                f.write(json.dumps(record) + "\n")
+                f.flush()
+                os.fsync(f.fileno())
+        except OSError as exc:  # e.g. a full disk: say which file (read_log skips a cut last line)
+            raise OSError(exc.errno, exc.strerror or str(exc), str(self.log_path)) from None
 
     def read_log(self) -> list[dict]:
         if not self.log_path.is_file():

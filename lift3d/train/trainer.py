@@ -73,6 +73,9 @@ def resolve_label_sizes(cfg: Config, data: TrainingData) -> None:
     """U from the categories the labels use (plus void); V from the pseudo-labels with headroom; no
     instance head without thing classes."""
     labels = data.labels
+    if labels.num_channels < 2:
+        raise InputError(cfg.scene.get("data", "--data"),
+                         "every training frame's pseudo-label is void: there is no class to learn")
     if cfg.field.num_semantic_classes <= 0:
         cfg.field.num_semantic_classes = labels.num_channels
     elif cfg.field.num_semantic_classes < labels.num_channels:
@@ -242,8 +245,13 @@ class Trainer:
         return self.run.save_checkpoint(self.step, self.state(), keep=self.cfg.trainer.keep_checkpoints)
 
     def restore(self, state: dict[str, Any]) -> None:
-        self.model.load_state_dict(state["model"])
-        self.optimizer.load_state_dict(state["optimizer"])
+        try:
+            self.model.load_state_dict(state["model"])
+            self.optimizer.load_state_dict(state["optimizer"])
+        except (RuntimeError, ValueError, KeyError) as exc:
+            first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
+            raise InputError(self.run.path / "checkpoints",
+                             f"the checkpoint does not fit this run's model ({first})") from None
         self.step = int(state["step"])
         self.train_seconds = float(state.get("train_seconds", 0.0))
         if "rng" in state:

@@ -12,6 +12,7 @@ import json
 import os
 from pathlib import Path
 
+import pytest
 import torch
 
 from robust_helpers import (
@@ -79,15 +80,20 @@ def test_disk_full_while_writing_metrics_keeps_the_old_metrics(healthy_run, tmp_
     assert not no_temp_files(run)
 
 
+@pytest.mark.skipif(not os.path.isdir("/proc/self/fd"), reason="needs /proc to tell the log's file descriptor")
 def test_disk_full_while_appending_to_the_training_log_is_one_line(synth_scene, tmp_path, capfd, monkeypatch):
     """``log.jsonl`` is appended, not written atomically: an ENOSPC there is an ordinary OSError, which the
     CLI still reports as one line naming the file (the net in ``lift3d.cli.main``)."""
-    from lift3d.train.run import RunFolder
+    import lift3d.train.run as run_module
 
-    def append_log(self, record):
-        raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), str(self.log_path))
+    real_fsync = os.fsync
 
-    monkeypatch.setattr(RunFolder, "append_log", append_log)
+    def fsync(fd):  # the disk fills while the log line is flushed; the file name is only known to append_log
+        if os.readlink(f"/proc/self/fd/{fd}").endswith("log.jsonl"):
+            raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC))
+        real_fsync(fd)
+
+    monkeypatch.setattr(run_module.os, "fsync", fsync)
     proc = cli(capfd, "train", "--data", synth_scene, "--output-dir", tmp_path / "runs", "--quiet",
                *tiny_flags(optim={"steps": 4}, trainer={"log_every": 2}))
     assert_one_line_error(proc, "train", "log.jsonl", "No space left on device")

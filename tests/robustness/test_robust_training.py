@@ -14,7 +14,8 @@ import torch
 import yaml
 
 from lift3d.errors import TrainingDiverged
-from robust_helpers import assert_one_line_error, cli, copy_scene, edit_json, no_temp_files, tiny, tiny_flags
+from robust_helpers import (assert_one_line_error, cli, copy_run, copy_scene, edit_json, no_temp_files, tiny,
+                            tiny_flags)
 
 
 def _finite_state(path) -> dict:
@@ -198,3 +199,22 @@ def test_one_instance_per_frame(synth_scene, tmp_path):
     assert cfg["scene"]["max_instances_per_frame"] == 1
     assert cfg["field"]["num_instance_channels"] >= 1
     assert any("instance" in r for r in result.run.read_log() if "total" in r)
+
+
+def test_a_scene_whose_training_frames_are_all_void_is_a_clear_error(synth_scene, tmp_path, capfd):
+    root = copy_scene(synth_scene, tmp_path / "room")
+    for png in (root / "panoptic").glob("*.png"):
+        cv2.imwrite(str(png), np.zeros_like(cv2.imread(str(png))))
+    proc = cli(capfd, "train", "--data", root, "--output-dir", tmp_path / "runs", "--quiet", *tiny_flags())
+    assert_one_line_error(proc, "train", str(root), "void")
+
+
+def test_resuming_with_a_checkpoint_of_another_model_is_a_clear_error(healthy_run, tmp_path, capfd):
+    run = copy_run(healthy_run, tmp_path / "run")
+    ckpt = sorted((run / "checkpoints").glob("step-*.pt"))[-1]
+    state = torch.load(ckpt, weights_only=False)
+    key = next(k for k, v in state["model"].items() if v.ndim == 2)
+    state["model"][key] = state["model"][key][:, :1].clone()  # a tensor of the wrong shape
+    torch.save(state, ckpt)
+    proc = cli(capfd, "train", "--resume", run, "--quiet", "--steps", 60)
+    assert_one_line_error(proc, "train", "checkpoint")
