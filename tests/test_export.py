@@ -580,10 +580,10 @@ def test_cli_errors_are_one_line(tiny_run, tmp_path, capsys):
     assert "--obb-scale" in capsys.readouterr().err
 
 
-def test_benchmark_export_reports_time_and_memory(tiny_run):
+def test_benchmark_export_reports_time_and_memory(tiny_run, tmp_path):
     from lift3d.export.pointcloud import benchmark_export
 
-    result = benchmark_export(tiny_run, num_points=3000)
+    result = benchmark_export(tiny_run, num_points=3000, output_dir=tmp_path / "not" / "yet")
     assert result["points"] > 0 and result["seconds"] > 0 and result["peak_rss_mb"] > 50
     assert result["seconds"] >= result["extract_seconds"] > 0
     assert {"threshold", "isosurface", "visibility", "heads", "instances"} <= set(result["stages"])

@@ -426,6 +426,8 @@ def benchmark_export(run_path, num_points: int = 1_000_000, output_dir=None) -> 
     t1 = time.perf_counter()
     pts = extract_labelled_points(loaded, scene, num_points=num_points)
     t2 = time.perf_counter()
+    if output_dir is not None:
+        Path(output_dir).mkdir(parents=True, exist_ok=True)
     with tempfile.TemporaryDirectory(dir=output_dir) as tmp:
         write_labelled_ply(Path(tmp) / "points.ply", pts.xyz, rgb=pts.rgb, semantic=pts.semantic,
                            instance=pts.instance, confidence=pts.confidence)
