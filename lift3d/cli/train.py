@@ -105,6 +105,7 @@ def scene_list(entries: list[str]) -> list[Path]:
 
 def train_many(scenes: list[Path], preset: str, output_dir: str, overrides: dict, progress: bool) -> int:
     """Train each scene as its own run. A scene that fails is reported and skipped; exit code 2 if any did."""
+    from lift3d.cli.main import one_line
     from lift3d.errors import Lift3DError
     from lift3d.train.trainer import train
 
@@ -114,7 +115,7 @@ def train_many(scenes: list[Path], preset: str, output_dir: str, overrides: dict
         try:
             train(scene, preset=preset, output_dir=output_dir, overrides=overrides, progress=progress)
         except Lift3DError as exc:
-            print(f"lift3d train: error: {exc}", file=sys.stderr, flush=True)
+            print(f"lift3d train: error: {one_line(str(exc))}", file=sys.stderr, flush=True)
             failed.append(scene)
     if failed:
         print(f"lift3d train: {len(failed)} of {len(scenes)} scene(s) failed: {', '.join(map(str, failed))}",

@@ -248,10 +248,9 @@ class Trainer:
         try:
             self.model.load_state_dict(state["model"])
             self.optimizer.load_state_dict(state["optimizer"])
-        except (RuntimeError, ValueError, KeyError) as exc:
-            first = str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__
-            raise InputError(self.run.path / "checkpoints",
-                             f"the checkpoint does not fit this run's model ({first})") from None
+        except (RuntimeError, ValueError, KeyError) as exc:  # the same report as load_run's
+            raise InputError(state.get("_path", self.run.checkpoint_dir),
+                             f"checkpoint does not match this lift3d ({exc})") from None
         self.step = int(state["step"])
         self.train_seconds = float(state.get("train_seconds", 0.0))
         if "rng" in state:
