@@ -151,6 +151,29 @@ def test_surface_points_lie_on_the_visible_surfaces(surface_points):
     assert np.all((pts.confidence > 0.5) & (pts.confidence <= 1.0))
 
 
+def test_a_sheet_thinner_than_the_coarse_lattice_is_still_contoured():
+    """A wall one fine cell thick, lying between two coarse-lattice nodes (what depth supervision makes of
+    a wall): the coarse pass sees zero on both sides and, at 64³, would skip it."""
+    from lift3d.export.mesh import field_isosurface, finest_grid_cells
+
+    model = _tiny_model()
+    model.cfg.field.grid_max_resolution = 128  # the field claims 128³ detail
+    x0 = 0.5 + 1.0 / 64  # halfway between two coarse nodes at 64³ (spacing 2/64)
+
+    def geometry(x):
+        sigma = torch.where((x[:, 0] - x0).abs() < 0.4 / 64, 500.0, 0.0)
+        return sigma, torch.zeros(len(x), model.cfg.field.geo_feat_dim), ((x + 1) / 2).clamp(0, 1)
+
+    model.field.geometry = geometry
+    assert finest_grid_cells(model) == 128
+    surf = field_isosurface(model, 100.0, 128)
+    assert surf.stats["coarse_cells"] == 128 and len(surf.faces) > 0
+    xs = surf.vertices[:, 0]
+    assert np.abs(xs - x0).max() < 2.0 / 128 and np.ptp(surf.vertices[:, 1]) > 1.5  # the whole sheet
+    model.cfg.field.kind = "mlp"  # no grid: the default coarse lattice
+    assert finest_grid_cells(model) == 0
+
+
 def test_automatic_threshold_matches_the_rendered_surface(analytic):
     tau, info = choose_density_threshold(analytic.loaded, analytic.scene)
     assert 0 < tau < PEAK_DENSITY, info

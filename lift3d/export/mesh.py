@@ -16,7 +16,8 @@ reaches opacity 0.5: ``τ = ln 2 / voxel``. ``--density-threshold`` overrides bo
 
 *Grid.* Density is evaluated on a lattice of ``resolution³`` cells over the field's domain (the box
 ``[-1, 1]³`` for bounded scenes, contracted space ``[-2, 2]³`` for unbounded ones) in two passes, so that
-only occupied cells are queried (PERFORMANCE.md): a coarse lattice of at most 64³ cells, then the fine
+only occupied cells are queried (PERFORMANCE.md): a coarse lattice (64³ cells, or the field's finest grid
+resolution when that is finer, so that a surface one grid cell thick is never missed), then the fine
 lattice only inside coarse cells whose corner densities come within a factor 4 of ``τ`` (or straddle it),
 dilated by one coarse cell. Other fine nodes take the trilinear upsampling of the coarse lattice, which
 there lies entirely below ``τ/4`` or above ``4τ`` and so adds no surface. Bounded fields are padded with
@@ -215,6 +216,14 @@ def _grid_to_normalized(g: np.ndarray, contraction: str) -> np.ndarray:
     return uncontract(g, contraction)
 
 
+def finest_grid_cells(model) -> int:
+    """Cells per axis of the field's finest density grid (0 when it has none, e.g. the plain MLP field)."""
+    cfg = getattr(getattr(model, "cfg", None), "field", None)
+    if cfg is None or getattr(cfg, "kind", "grid") != "grid":
+        return 0
+    return int(getattr(cfg, "grid_max_resolution", 0) or 0)
+
+
 def field_isosurface(model, threshold: float, resolution: int = 256, *, max_radius: float | None = None,
                      progress: bool = False) -> FieldSurface:
     """Contour the density of ``model`` at ``threshold`` on a chunked grid (see the module docstring).
@@ -250,7 +259,10 @@ def field_isosurface(model, threshold: float, resolution: int = 256, *, max_radi
 
     contraction = contraction_of(model)
     extent = 1.0 if contraction == "none" else 2.0
-    factor = max(1, math.ceil(resolution / COARSE_CELLS))
+    # The coarse lattice must resolve the field's finest grid: a surface one grid cell thick (what depth
+    # supervision makes of a wall) falls between coarser nodes and would never be refined.
+    coarse_target = max(COARSE_CELLS, min(resolution, finest_grid_cells(model)))
+    factor = max(1, math.ceil(resolution / coarse_target))
     coarse_cells = math.ceil(resolution / factor)
     cells = coarse_cells * factor
     tau = float(threshold)
