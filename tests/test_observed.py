@@ -30,6 +30,21 @@ def test_cells_behind_the_only_camera_are_unobserved():
     assert (dilated | mask).equal(dilated) and dilated.sum() > mask.sum()
 
 
+def test_cells_outside_the_declared_scene_box_are_unobserved():
+    cams = one_camera([0.0, -0.5, 0.0], [0.0, 1.0, 0.0])
+    space = SceneSpace("none")
+    box = np.array([[-0.5, -1.0, -0.25], [0.5, 1.0, 0.25]])
+    mask = observed_cells(space, cams, [0], 16, near=0.05, dilate=0, box=box)
+    free = observed_cells(space, cams, [0], 16, near=0.05, dilate=0)
+    c = space.cell_centers(16).numpy()
+    inside = torch.from_numpy(((c >= box[0]) & (c <= box[1])).all(-1))
+    assert not mask[~inside].any()
+    assert mask[inside].equal(free[inside])  # inside the box the cameras still decide
+    # One cell of dilation lets a surface lying on the box's face keep its density.
+    dilated = observed_cells(space, cams, [0], 16, near=0.05, dilate=1, box=box)
+    assert dilated[~inside].any() and (dilated | mask).equal(dilated)
+
+
 def test_unobserved_cells_have_zero_density_and_survive_a_checkpoint():
     cfg = FieldConfig(grid_max_resolution=16, grid_min_resolution=8, num_semantic_classes=3, num_instance_channels=0,
                       contraction="none", head_hidden_dim=8)

@@ -15,7 +15,7 @@ from torch.nn import functional as F
 
 
 def observed_cells(space, cameras, frames, resolution: int, *, near: float, margin: float = 0.05,
-                   dilate: int = 1) -> Tensor:
+                   dilate: int = 1, box: np.ndarray | None = None) -> Tensor:
     """``[R, R, R]`` bool: lattice cells whose centre some camera of ``frames`` sees (ignoring occlusion).
 
     Parameters
@@ -34,10 +34,19 @@ def observed_cells(space, cameras, frames, resolution: int, *, near: float, marg
         Image bounds widened by this fraction of the image size per side, and ``dilate`` cells of dilation:
         a cell whose centre falls just outside every frustum may still be crossed by a ray near the image
         border. Marking too much only costs the fog it lets through; marking too little cuts surfaces.
+    box : np.ndarray, optional
+        ``[2, 3]`` min/max corners (normalised units) of the box the scene declares it lives in
+        (``scene_box`` of a bounded scene): cells outside it are not observed either. The normalised cube
+        is padded and cubic, so without this the space behind a room's walls and under its floor can hold
+        fog that the export then reports as surface.
 
     """
     centers = space.cell_centers(resolution).reshape(-1, 3).numpy()
     seen = np.zeros(len(centers), bool)
+    if box is not None:
+        box = np.asarray(box, float)
+        outside = ((centers < box[0]) | (centers > box[1])).any(1)
+        seen[outside] = True  # "done": never tested against the cameras, cleared below
     for i in frames:
         i = int(i)
         todo = np.flatnonzero(~seen)
@@ -49,6 +58,8 @@ def observed_cells(space, cameras, frames, resolution: int, *, near: float, marg
         mw, mh = margin * w, margin * h
         inside = (z > near) & (uv[:, 0] >= -mw) & (uv[:, 0] <= w + mw) & (uv[:, 1] >= -mh) & (uv[:, 1] <= h + mh)
         seen[todo[inside]] = True
+    if box is not None:
+        seen[outside] = False
     grid = torch.from_numpy(seen.reshape(resolution, resolution, resolution))
     if dilate > 0:
         k = 2 * dilate + 1
