@@ -8,7 +8,10 @@ import torch
 from lift3d.train.assignment import instance_cost_matrix, linear_assign_instances
 from lift3d.train.losses import (
     charbonnier_loss,
+    depth_loss,
     disparity_loss,
+    distortion_loss,
+    distortion_loss_reference,
     feature_loss,
     instance_loss,
     segment_consistency_loss,
@@ -119,6 +122,35 @@ def test_disparity_loss_hand_case():
     w = torch.tensor([[0.5, 0.5], [1.0, 0.0]])
     t = torch.tensor([[1.0, 2.0], [4.0, 8.0]])
     assert abs(float(disparity_loss(w, t)) - (0.75 + 0.25) / 2) < 1e-7
+
+
+def test_distortion_loss_hand_case_and_reference():
+    # Two intervals [0, .5], [.5, 1] with weights .5 each: pairwise 2·(.25·.5) = .25, own 1/3·2·(.25·.5) = 1/12.
+    w = torch.tensor([[0.5, 0.5]])
+    s = torch.tensor([[0.0, 0.5, 1.0]])
+    assert abs(float(distortion_loss(w, s)) - (0.25 + 1 / 12)) < 1e-7
+    # A compact ray costs less than the same opacity spread out (what the loss is for).
+    compact = torch.tensor([[0.0, 1.0, 0.0, 0.0]])
+    spread = torch.tensor([[0.25, 0.25, 0.25, 0.25]])
+    edges = torch.linspace(0, 1, 5)[None]
+    assert float(distortion_loss(compact, edges)) < float(distortion_loss(spread, edges))
+    g = torch.Generator().manual_seed(0)
+    w = torch.rand(7, 24, generator=g, dtype=torch.float64)
+    w = w / w.sum(-1, keepdim=True) * torch.rand(7, 1, generator=g, dtype=torch.float64)
+    s = torch.sort(torch.rand(7, 25, generator=g, dtype=torch.float64), -1).values
+    torch.testing.assert_close(distortion_loss(w, s), distortion_loss_reference(w, s))
+    w.requires_grad_(True)
+    distortion_loss(w, s).backward()
+    assert torch.isfinite(w.grad).all()
+
+
+def test_depth_loss_hand_case_ignores_unknown_depth():
+    w = torch.tensor([[0.5, 0.5, 0.0], [0.0, 1.0, 0.0], [1.0, 0.0, 0.0]])
+    t = torch.tensor([[1.0, 2.0, 3.0], [1.0, 2.0, 3.0], [1.0, 2.0, 3.0]])
+    d = torch.tensor([2.0, 2.0, 0.0])  # the third ray has no measurement
+    # ray 0: |1.5 - 2| + 0.5 (the weight at t = 1 is off the surface); ray 1: 0 + 0
+    assert abs(float(depth_loss(w, t, d, margin=0.1)) - (0.5 + 0.5) / 2) < 1e-7
+    assert float(depth_loss(w, t, torch.zeros(3), margin=0.1)) == 0.0
 
 
 def test_feature_loss_hand_case():

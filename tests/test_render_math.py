@@ -228,3 +228,49 @@ def test_render_rays_extremes_no_nan():
             assert float(out.opacity[1]) == 0.0  # the ray that misses the box renders nothing
         (out.rgb.sum() + out.semantic.sum() + out.distill).backward()
         assert all(torch.isfinite(p.grad).all() for p in field.parameters() if p.grad is not None)
+
+
+def test_depth_guided_edges_land_around_the_measured_depth():
+    from lift3d.render.renderer import add_depth_guided_edges
+
+    s = torch.linspace(0.0, 1.0, 9)[None].repeat(3, 1)  # [3, 9]
+    near, far = torch.zeros(3), torch.ones(3)
+    out = add_depth_guided_edges(s, torch.tensor([0.3, 0.0, 0.99]), near, far, 4, 0.06, "linear")
+    assert out.shape == (3, 13) and (out.diff(dim=-1) >= 0).all()
+    added = [sorted(set(out[0].tolist()) - set(s[0].tolist()))]
+    assert np.allclose(added[0], [0.24, 0.28, 0.32, 0.36], atol=1e-6)
+    assert (out[1, 9:] == 1.0).all()  # no depth: zero-length intervals at the far end
+    assert float(out[2].max()) == 1.0  # clamped to the far plane
+    # Unbounded (lin/disparity spacing): the new edges map back to distances around the depth.
+    near, far = torch.full((1,), 0.05), torch.full((1,), 1e3)
+    s_ud = uniform_edges(near, far, 8, "lindisp", False)
+    out = add_depth_guided_edges(s_ud, torch.tensor([4.0]), near, far, 3, 0.5, "lindisp")
+    t = spacing_fn_inv(out, "lindisp")
+    assert torch.isclose(t, torch.tensor(4.0), atol=1e-4).any() and ((t > 3.49) & (t < 4.51)).sum() >= 3
+
+
+def test_depth_guided_samples_put_weight_where_the_training_depth_says():
+    """A field with a thin wall the proposal has not seen: without guidance no sample lands on it."""
+    from lift3d.render.renderer import SamplingConfig, render_rays
+
+    class Wall(torch.nn.Module):
+        def __init__(self):
+            super().__init__()
+            self.space = type("S", (), {"__call__": lambda self, x: (x, torch.ones(len(x), dtype=torch.bool))})()
+
+        def geometry(self, x):
+            sigma = torch.where((x[:, 0] - 0.6).abs() < 0.01, 1e4, 0.0)
+            return sigma, torch.zeros(len(x), 4), x
+
+        def color(self, geo, dirs):
+            return torch.ones(len(geo), 3)
+
+    o = torch.tensor([[-0.9, 0.0, 0.0]])
+    d = torch.tensor([[1.0, 0.0, 0.0]])
+    cfg = SamplingConfig(proposal_resolutions=(), num_samples=8, near_gradient_distance=0.0)
+    plain = render_rays(Wall(), torch.nn.ModuleList(), o, d, cfg, bounded=True, training=True, with_labels=False,
+                        generator=torch.Generator().manual_seed(0))
+    guided = render_rays(Wall(), torch.nn.ModuleList(), o, d, cfg, bounded=True, training=True, with_labels=False,
+                         generator=torch.Generator().manual_seed(0), depth_target=torch.tensor([1.5]))
+    assert float(plain.opacity[0]) < 0.5 < float(guided.opacity[0])
+    assert abs(float(guided.depth[0]) - 1.5) < 0.01

@@ -34,6 +34,32 @@ def trained(tiny_indoor, tmp_path_factory):
     return train(tiny_indoor, preset="fast", output_dir=out, overrides=TINY, progress=False, print_summary=False)
 
 
+def test_depth_maps_become_ray_distances_in_normalised_units(tiny_indoor):
+    from lift3d.data.scene import load_scene
+    from lift3d.render.rays import RayGenerator
+    from lift3d.train.data import TrainingData
+    from lift3d.train.normalization import infer_normalization
+
+    scene = load_scene(tiny_indoor)
+    norm, _ = infer_normalization(scene)
+    rays = RayGenerator(scene.cameras, norm.c2w_normalized(scene.cameras.c2w))
+    data = TrainingData(scene, scene.split("train"), rays, progress=False, depth_scale=norm.scale)
+    batch = data.sample(3, 50, 4, torch.Generator().manual_seed(0))
+    assert batch.depth is not None and (batch.depth > 0).all()
+    # The surface point along each ray, back in world units, sits at the depth map's z in its camera.
+    world = norm.to_world((batch.origins + batch.dirs * batch.depth[:, None]).numpy())
+    frames = np.asarray(scene.split("train"))[batch.image.numpy()]
+    for k in range(0, len(world), 17):
+        i = int(frames[k])
+        c2w = scene.cameras.c2w_opencv[i]
+        z = ((world[k] - c2w[:3, 3]) @ c2w[:3, :3])[2]
+        uv, _ = scene.cameras.project(i, world[k][None])
+        u, v = np.floor(uv[0]).astype(int)
+        assert abs(z - scene.depth(i)[v, u]) < 2e-3
+    assert TrainingData(scene, scene.split("train"), rays, progress=False).sample(
+        1, 4, 0, torch.Generator()).depth is None
+
+
 def test_run_folder_layout_and_derived_config(trained, tiny_indoor):
     run = trained.run.path
     assert run.parent.name == "fast" and run.parent.parent.name == tiny_indoor.name
@@ -81,6 +107,21 @@ def test_loaded_run_renders_labels(trained):
     things = np.isin(frame.semantic, loaded.labels.thing_ids)
     assert (frame.instance[~things] == 0).all()
     assert frame.depth.max() > 0
+
+
+def test_space_outside_the_declared_scene_box_has_no_density(trained, tiny_indoor):
+    loaded = load_run(trained.run.path, device="cpu")
+    box = np.asarray(json.loads((tiny_indoor / "transforms.json").read_text())["scene_box"]["aabb"], float)
+    field = loaded.model.field
+    res = field.space.observed.shape[0]
+    centers = field.space.cell_centers(res).reshape(-1, 3).numpy()
+    world = loaded.norm.to_world(centers)
+    cell = 2.0 / res / loaded.norm.scale  # one lattice cell in world units (the dilation margin)
+    far_outside = ((world < box[0] - 1.5 * cell) | (world > box[1] + 1.5 * cell)).any(1)
+    assert far_outside.any()
+    with torch.no_grad():
+        sigma, _, _ = field.geometry(torch.from_numpy(centers[far_outside]).float())
+    assert float(sigma.abs().max()) == 0.0
 
 
 @pytest.mark.slow

@@ -16,7 +16,7 @@ from dataclasses import dataclass
 import torch
 from torch import Tensor, nn
 
-from lift3d.render.samplers import interlevel_loss, ray_aabb, sample_pdf, spacing_fn_inv, uniform_edges
+from lift3d.render.samplers import interlevel_loss, ray_aabb, sample_pdf, spacing_fn, spacing_fn_inv, uniform_edges
 from lift3d.render.volume import composite, interval_midpoints, render_weights
 
 
@@ -49,6 +49,13 @@ class SamplingConfig:
     ``min(1, (t / d)^2)`` (Philip & Deschaintre 2023, "Floaters No More"): space close to a camera is
     sampled far more densely per volume than the scene, so it over-learns and grows floaters that fog nearby
     novel views. Normalised units; 0 disables."""
+    depth_guide_samples: int = 5
+    """Training rays with a measured depth get this many extra samples spread over ±``depth_guide_spread``
+    around it (depth-guided sampling, as in Roessle et al. 2022, "Dense Depth Priors for NeRF"). Without
+    them, a surface that first forms in the wrong place captures every proposal sample and depth
+    supervision can no longer reach the true one. 0 disables."""
+    depth_guide_spread: float = 0.03
+    """Half-width of the depth-guided samples (normalised units)."""
     background: str = "black"
     """Colour behind the last sample: ``black``, ``white`` or ``random`` (training only; black at test)."""
     chunk_size: int = 4096
@@ -66,6 +73,7 @@ class RenderOutputs:
     instance: Tensor | None  # [R, V] composited logits (weights detached)
     weights: Tensor  # [R, S]
     t_mid: Tensor  # [R, S]
+    s_edges: Tensor  # [R, S+1] sample edges in the ray coordinate normalised to [0, 1] between near and far
     distill: Tensor  # scalar: Σ over proposal levels of the inter-level loss (0 without proposals)
 
 
@@ -94,6 +102,7 @@ def render_rays(
     background: Tensor | None = None,
     generator: torch.Generator | None = None,
     proposal_anneal: float = 1.0,
+    depth_target: Tensor | None = None,
 ) -> RenderOutputs:
     """Render a batch of rays.
 
@@ -116,6 +125,9 @@ def render_rays(
         ``[R, 3]`` or ``[3]`` colour behind the ray (overrides ``cfg.background``).
     proposal_anneal : float
         Exponent in ``[0, 1]`` applied to proposal weights before resampling (1 = no annealing).
+    depth_target : Tensor, optional
+        ``[R]`` measured distance along each ray (normalised units, 0 = unknown): adds
+        ``cfg.depth_guide_samples`` samples around it when training.
     """
     n_rays = origins.shape[0]
     spacing = "linear" if bounded else "lindisp"
@@ -142,6 +154,9 @@ def render_rays(
             s_edges = sample_pdf(s_edges, w_resample, n_next, training, generator=generator)
     else:
         s_edges = uniform_edges(near, far, cfg.num_samples, spacing, training, generator)
+    if training and depth_target is not None and cfg.depth_guide_samples > 0:
+        s_edges = add_depth_guided_edges(s_edges, depth_target, near, far, cfg.depth_guide_samples,
+                                         cfg.depth_guide_spread, spacing)
 
     x, t_mid, deltas = points(s_edges)
     n_samples = t_mid.shape[1]
@@ -186,8 +201,25 @@ def render_rays(
             distill = distill + interlevel_loss(s_edges, weights, prop_edges, prop_w)
 
     depth = (weights * t_mid).sum(-1)
+    s_near, s_far = spacing_fn(near, spacing)[:, None], spacing_fn(far, spacing)[:, None]
+    s_unit = (s_edges - s_near) / (s_far - s_near).clamp_min(1e-9)
     return RenderOutputs(rgb=rgb, depth=depth, opacity=opacity, semantic=semantic, instance=instance,
-                         weights=weights, t_mid=t_mid, distill=distill)
+                         weights=weights, t_mid=t_mid, s_edges=s_unit, distill=distill)
+
+
+def add_depth_guided_edges(s_edges: Tensor, depth: Tensor, near: Tensor, far: Tensor, n: int, spread: float,
+                           spacing: str) -> Tensor:
+    """Merge ``n`` edges evenly spread over ``depth ± spread`` into each ray's sorted edges.
+
+    ``s_edges``: ``[R, S+1]`` (spacing coordinate); ``depth``, ``near``, ``far``: ``[R]`` distances (depth 0 =
+    unknown). Returns ``[R, S+1+n]`` sorted edges. Rays without a depth get copies of their last edge:
+    zero-length intervals, which carry no weight.
+    """
+    offsets = torch.linspace(-spread, spread, n, device=depth.device, dtype=depth.dtype)
+    t = (depth[:, None] + offsets[None, :]).clamp(min=near[:, None], max=far[:, None])
+    extra = spacing_fn(t, spacing)
+    extra = torch.where((depth > 0)[:, None], extra, s_edges[:, -1:].expand_as(extra))
+    return torch.sort(torch.cat([s_edges, extra], -1), -1).values
 
 
 class _ScaleGradient(torch.autograd.Function):

@@ -1,7 +1,8 @@
 """Training data kept compact in memory, and the patch + random-ray batches of each step.
 
 Per pixel the cache holds 3 bytes of colour, int16 semantic channel and per-frame instance id, int32
-per-frame segment id and (when not all ones) a float16 confidence: ~13 bytes, not ``H·W·C`` floats.
+per-frame segment id, (when not all ones) a float16 confidence and (when depth supervision is on) a
+float32 depth: ~13–17 bytes, not ``H·W·C`` floats.
 Frames may differ in size (the pixels of all frames are concatenated).
 """
 
@@ -64,6 +65,7 @@ class Batch:
     segment: Tensor  # [R] int64 per-image 2D segment id, 0 = void
     confidence: Tensor | None  # [R] float
     image: Tensor  # [R] int64 frame index
+    depth: Tensor | None  # [R] float distance along the ray to the surface (normalised units), 0 = unknown
     n_patch_rays: int
     patch_size: int
 
@@ -80,10 +82,13 @@ class TrainingData:
         Ray generator over *all* scene frames (normalised coordinates).
     labels : LabelSpace, optional
         The semantic channels; derived from the labels when None.
+    depth_scale : float, optional
+        Load the frames' depth maps (``depth_file_path``), converted to normalised units with this scale
+        (normalised units per world unit); None = no depth.
     """
 
     def __init__(self, scene: Scene, frames: np.ndarray, rays: RayGenerator, labels: LabelSpace | None = None,
-                 progress: bool = True):
+                 progress: bool = True, depth_scale: float | None = None):
         self.frames = np.asarray(frames, np.int64)
         self.rays = rays
         self.device = rays.device
@@ -97,6 +102,7 @@ class TrainingData:
         inst = np.empty(n, np.int16)
         seg = np.empty(n, np.int32)
         conf = np.empty(n, np.float16)
+        depth = np.zeros(n, np.float32) if depth_scale is not None and scene.has_depth else None
         mask = None
         self.max_instances_per_frame = 0
         for k, i in enumerate(progress_bar(self.frames, desc="load frames", disable=not progress)):
@@ -113,6 +119,10 @@ class TrainingData:
             _, sinv = np.unique(lab.segment.reshape(-1), return_inverse=True)
             seg[a:b] = np.where(lab.segment.reshape(-1) > 0, sinv + 1, 0)
             conf[a:b] = lab.confidence.reshape(-1)
+            if depth is not None:
+                d = scene.depth(int(i))
+                if d is not None:
+                    depth[a:b] = np.where(np.isfinite(d) & (d > 0), d, 0).reshape(-1) * depth_scale
             m = scene.mask(int(i))
             if m is not None:
                 if mask is None:
@@ -129,6 +139,7 @@ class TrainingData:
         self.segment = torch.from_numpy(seg).to(dev)
         self.confidence = None if bool(np.all(conf == 1)) else torch.from_numpy(conf).to(dev)
         self.mask = None if mask is None else torch.from_numpy(mask).to(dev)
+        self.depth = None if depth is None or not depth.any() else torch.from_numpy(depth).to(dev)
         self.widths = torch.as_tensor(widths, device=dev)
         self.heights = torch.as_tensor(heights, device=dev)
         self.offsets_t = torch.as_tensor(self.offsets, device=dev)
@@ -178,7 +189,7 @@ class TrainingData:
             keep[:n_patch] = True  # patches stay whole (L_feat needs the full patch)
             u, v, f, flat = u[keep], v[keep], f[keep], flat[keep]
         scene_frame = torch.as_tensor(self.frames, device=dev)[f]
-        origins, dirs, _ = self.rays.rays(scene_frame, u, v)
+        origins, dirs, cos_axis = self.rays.rays(scene_frame, u, v)
         return Batch(
             origins=origins,
             dirs=dirs,
@@ -188,6 +199,7 @@ class TrainingData:
             segment=self.segment[flat].long(),
             confidence=None if self.confidence is None else self.confidence[flat].float(),
             image=f,
+            depth=None if self.depth is None else self.depth[flat] / cos_axis.clamp_min(1e-6),
             n_patch_rays=n_patch,
             patch_size=ps,
         )

@@ -56,17 +56,19 @@ class PanopticModel(nn.Module):
         return [p for p in self.parameters() if id(p) not in grid_ids]
 
     def render(self, origins: Tensor, dirs: Tensor, *, training: bool = False, with_labels: bool = True,
-               generator: torch.Generator | None = None, proposal_anneal: float = 1.0) -> RenderOutputs:
+               generator: torch.Generator | None = None, proposal_anneal: float = 1.0,
+               depth_target: Tensor | None = None) -> RenderOutputs:
         """Render a batch of normalised-space rays (with gradients); see :func:`render_rays`."""
         return render_rays(self.field, self.proposals, origins, dirs, self.cfg.sampling, bounded=self.bounded,
                            training=training, with_labels=with_labels, generator=generator,
-                           proposal_anneal=proposal_anneal)
+                           proposal_anneal=proposal_anneal, depth_target=depth_target)
 
     def forward(self, origins: Tensor, dirs: Tensor, training: bool = True, with_labels: bool = True,
-                generator: torch.Generator | None = None, proposal_anneal: float = 1.0) -> RenderOutputs:
+                generator: torch.Generator | None = None, proposal_anneal: float = 1.0,
+                depth_target: Tensor | None = None) -> RenderOutputs:
         """Same as :meth:`render`; the entry point DistributedDataParallel wraps."""
         return self.render(origins, dirs, training=training, with_labels=with_labels, generator=generator,
-                           proposal_anneal=proposal_anneal)
+                           proposal_anneal=proposal_anneal, depth_target=depth_target)
 
     def render_chunked(self, origins: Tensor, dirs: Tensor, *, with_labels: bool = True,
                        chunk_size: int | None = None, progress: bool = False) -> dict[str, Tensor]:

@@ -31,7 +31,9 @@ from lift3d.train.data import LabelSpace, TrainingData
 from lift3d.train.distributed import DistContext, all_ranks_agree, broadcast_object, init_distributed, shutdown
 from lift3d.train.losses import (
     charbonnier_loss,
+    depth_loss,
     disparity_loss,
+    distortion_loss,
     feature_loss,
     instance_loss,
     segment_consistency_loss,
@@ -93,7 +95,8 @@ def resolve_label_sizes(cfg: Config, data: TrainingData) -> None:
     else:
         why_v = "set by the user"
     cfg.scene.update(labels=labels.to_dict(), why_instance_channels=why_v,
-                     max_instances_per_frame=int(data.max_instances_per_frame))
+                     max_instances_per_frame=int(data.max_instances_per_frame),
+                     depth_supervision=data.depth is not None)
 
 
 # ------------------------------------------------------------------------------------------ loading runs
@@ -177,14 +180,18 @@ class Trainer:
         self.ctx = dist_ctx or DistContext()
         self.progress = progress and self.ctx.is_main
         self.rays = RayGenerator(scene.cameras, norm.c2w_normalized(scene.cameras.c2w), device)
-        self.data = TrainingData(scene, scene.split("train"), self.rays, labels, progress=self.progress)
+        self.data = TrainingData(scene, scene.split("train"), self.rays, labels, progress=self.progress,
+                                 depth_scale=norm.scale if cfg.losses.depth > 0 else None)
         resolve_label_sizes(cfg, self.data)
         self.model = PanopticModel(cfg, self.data.labels).to(device)
         if cfg.field.observed_resolution > 0:  # (a resumed run loads its own lattice with the checkpoint)
             cams = replace(scene.cameras, c2w=norm.c2w_normalized(scene.cameras.c2w))
+            box = None
+            if scene.scene_box is not None and norm.bounded:
+                box = np.sort(norm.to_normalized(np.asarray(scene.scene_box.aabb, float)), axis=0)
             self.model.field.space.observed = observed_cells(
                 self.model.field.space, cams, scene.split("train"), cfg.field.observed_resolution,
-                near=cfg.sampling.near_plane).to(device)
+                near=cfg.sampling.near_plane, box=box).to(device)
         self.model.train()
         # Under DDP gradients must pass through autograd's accumulation hooks (see field.grids).
         grids.ACCUMULATE_GRAD_IN_PLACE = not self.ctx.enabled
@@ -264,8 +271,9 @@ class Trainer:
         self._set_active_levels()
         anneal_steps = self.cfg.sampling.proposal_anneal_steps
         anneal = min(1.0, self.step / anneal_steps) if anneal_steps > 0 else 1.0
+        depth_target = batch.depth if cfg.depth > 0 else None
         out = self.forward_model(batch.origins, batch.dirs, training=True, with_labels=with_labels,
-                                 generator=self.generator, proposal_anneal=anneal)
+                                 generator=self.generator, proposal_anneal=anneal, depth_target=depth_target)
         conf = batch.confidence if cfg.use_confidence else None
         terms: dict[str, torch.Tensor] = {"color": charbonnier_loss(out.rgb, batch.rgb, cfg.charbonnier_eps)}
         if len(self.model.proposals):
@@ -289,9 +297,13 @@ class Trainer:
             if grids_:
                 terms["tv"] = torch.stack([g.total_variation(cfg.tv_samples, self.generator) for g in grids_]).mean()
             terms["disparity"] = disparity_loss(out.weights, out.t_mid)
+        if cfg.depth > 0 and batch.depth is not None:
+            terms["depth"] = depth_loss(out.weights, out.t_mid, batch.depth, cfg.depth_margin)
+        if cfg.distortion > 0:
+            terms["distortion"] = distortion_loss(out.weights, out.s_edges)
         weights = {"color": cfg.color, "distill": cfg.distill, "semantic": cfg.semantic, "instance": cfg.instance,
                    "segment": cfg.segment, "feature": cfg.feature, "tv": cfg.regularization,
-                   "disparity": cfg.regularization}
+                   "disparity": cfg.regularization, "distortion": cfg.distortion, "depth": cfg.depth}
         terms["total"] = sum(weights[k] * v for k, v in terms.items())
         with torch.no_grad():
             mse = ((out.rgb - batch.rgb) ** 2).mean()
@@ -497,6 +509,7 @@ def _train(data, preset, output_dir, overrides, resume, progress, print_summary,
     if ctx.is_main:
         save_config(cfg, run.config_path)
     result.summary["parameters"] = count_parameters(trainer.model)
+    result.summary["depth_supervision"] = trainer.data.depth is not None
     if print_summary and ctx.is_main:
         print(format_summary(result, cfg))
     return result
@@ -519,7 +532,8 @@ def format_summary(result: TrainResult, cfg: Config) -> str:
         f"  run folder     {result.run.path}",
         f"  model          {cfg.field.kind}, grid {cfg.field.grid_max_resolution}^3, "
         f"U={cfg.field.num_semantic_classes}, V={cfg.field.num_instance_channels}, "
-        f"{'bounded' if cfg.field.contraction == 'none' else 'unbounded (' + cfg.field.contraction + ')'}",
+        f"{'bounded' if cfg.field.contraction == 'none' else 'unbounded (' + cfg.field.contraction + ')'}"
+        f"{', depth-supervised' if cfg.scene.get('depth_supervision') else ''}",
     ]
     if ev:
         lines.append(f"  held-out views PSNR {ev['psnr']:.2f} dB, mIoU {ev['miou']:.3f}, PQ^scene {ev['pq_scene']:.3f} "
