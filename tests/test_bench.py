@@ -19,7 +19,11 @@ def test_bench_quick_writes_every_report(tmp_path):
     results = json.loads((out / "results.json").read_text())
     assert results["machine"]["cpu"] and results["machine"]["torch_threads"] >= 1
     runs = results["runs"]
-    assert {(r["noise"], r["preset"]) for r in runs} == {("moderate", "fast"), ("hard", "fast")}
+    assert {(r["noise"], r["preset"], r["variant"]) for r in runs} == {
+        ("moderate", "fast", "all"), ("hard", "fast", "all"), ("moderate", "fast", "rgb-only")}
+    # The synthetic scenes ship depth maps: the presets use them, the RGB-only row and the ablation do not.
+    assert {r["variant"]: r["depth_supervision"] for r in runs} == {"all": True, "rgb-only": False}
+    assert not any(r["depth_supervision"] for r in results["ablation"])
     for r in runs:
         assert r["train_seconds"] > 0 and r["peak_rss_mb"] > 100 and r["render_ms_per_2048_rays"] > 0
         assert 0 <= r["miou"] <= 1 and 0 <= r["pq_scene"] <= 1 and r["psnr"] > 5
@@ -31,7 +35,8 @@ def test_bench_quick_writes_every_report(tmp_path):
     for name in ("pareto.png", "scaling.png", "benchmarks.md"):
         assert (out / name).is_file()
     md = (tmp_path / "docs" / "benchmarks.md").read_text()
-    assert results["machine"]["cpu"] in md and "| indoor | hard | fast |" in md
+    assert results["machine"]["cpu"] in md and "| indoor | hard | RGB + depth | fast |" in md
+    assert "| indoor | moderate | RGB | fast |" in md
     # Resumable: a second run reuses every cached measurement (fast, same numbers).
     proc2 = subprocess.run(cmd, capture_output=True, text=True, timeout=300)
     assert proc2.returncode == 0

@@ -40,6 +40,7 @@ def run_train(spec: dict) -> dict:
         "train_seconds": result.seconds,
         "train_wall_seconds": train_wall,
         "peak_rss_mb": rss_train,
+        "depth_supervision": bool(result.summary.get("depth_supervision", False)),
         "metrics": metrics,
     })
 

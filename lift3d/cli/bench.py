@@ -35,6 +35,8 @@ def add_parser(subparsers, verb: str) -> argparse.ArgumentParser:
                    help="presets in cost order (default: fast,balanced,quality)")
     p.add_argument("--seeds", type=_csv(int), default=(0,), metavar="LIST", help="seeds (default: 0)")
     p.add_argument("--no-hard", action="store_true", help="skip the indoor scene with --noise hard")
+    p.add_argument("--no-rgb-only", action="store_true",
+                   help="skip the indoor run without the scene's depth maps (the paper's RGB-only setting)")
     p.add_argument("--no-bounded", action="store_true",
                    help="skip the bounded-field run of the outdoor scene (unbounded vs bounded comparison)")
     p.add_argument("--no-ablation", action="store_true", help="skip the ablation")
@@ -57,7 +59,7 @@ def run(args: argparse.Namespace) -> int:
         checkout_docs = Path(__file__).resolve().parents[2] / "docs"
         docs = checkout_docs if checkout_docs.is_dir() else None
     cfg = BenchConfig(out=Path(args.out), scenes=args.scenes, presets=args.presets, seeds=args.seeds,
-                      hard_noise=not args.no_hard, bounded_check=not args.no_bounded,
+                      hard_noise=not args.no_hard, rgb_only=not args.no_rgb_only, bounded_check=not args.no_bounded,
                       ablation=not args.no_ablation,
                       ablation_budget=args.ablation_budget, scaling=not args.no_scaling, quick=args.quick,
                       docs_dir=docs)
