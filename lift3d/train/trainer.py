@@ -468,6 +468,25 @@ def train(
         shutdown(ctx)
 
 
+def _remove_if_empty(path: Path, keep_below: Path) -> None:
+    """Delete a run folder that holds no file yet (only empty subfolders), then its parents up to (not
+    including) ``keep_below`` while they are empty."""
+    import shutil
+
+    path = Path(path)
+    if not path.is_dir() or any(p.is_file() for p in path.rglob("*")):
+        return
+    shutil.rmtree(path, ignore_errors=True)
+    stop = Path(keep_below).resolve()
+    parent = path.parent
+    while parent.resolve() != stop and stop in parent.resolve().parents:
+        try:
+            parent.rmdir()  # only succeeds when empty
+        except OSError:
+            break
+        parent = parent.parent
+
+
 def _train(data, preset, output_dir, overrides, resume, progress, print_summary, ctx: DistContext,
            device_name: str) -> TrainResult:
     if resume is not None:
@@ -499,7 +518,12 @@ def _train(data, preset, output_dir, overrides, resume, progress, print_summary,
     seed_everything(cfg.trainer.seed)
     device = resolve_device(device_name if ctx.enabled else cfg.trainer.device)
     labels = LabelSpace.from_dict(cfg.scene["labels"]) if resume is not None and "labels" in cfg.scene else None
-    trainer = Trainer(scene, cfg, norm, run, device, progress=progress, labels=labels, dist_ctx=ctx)
+    try:
+        trainer = Trainer(scene, cfg, norm, run, device, progress=progress, labels=labels, dist_ctx=ctx)
+    except BaseException:
+        if resume is None and ctx.is_main:
+            _remove_if_empty(run.path, keep_below=Path(output_dir))  # e.g. a corrupt frame: no empty run left
+        raise
     if resume is not None:
         trainer.restore(run.load_latest_checkpoint(map_location=device))
     elif ctx.is_main:

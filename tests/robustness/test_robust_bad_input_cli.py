@@ -154,6 +154,8 @@ def test_train_on_bad_scene_fails_with_one_line(synth_scene, tmp_path, capfd, da
     # Nothing half-written: no temp files, no checkpoint of a run that never trained.
     assert not no_temp_files(tmp_path)
     assert not list(out.rglob("step-*.pt")) if out.exists() else True
+    # ... and no empty run folder either (the output root itself may stay).
+    assert not [p for p in out.rglob("*") if p.is_dir()] if out.exists() else True
 
 
 def test_bad_ground_truth_found_after_training_keeps_the_trained_checkpoint(synth_scene, tmp_path, capfd):
