@@ -322,7 +322,10 @@ def benchmarks_markdown(results: dict, pictures: dict[str, str]) -> str:
         "Test views of synthetic scenes (`lift3d synth`). *Lifted* is the trained field; *2D* is the same metric "
         "on the pseudo-labels it learned from (per-frame ids as given). PQ^scene and mIoU at `min_area` 0.005 "
         "(strict, `min_area` 0, in results.csv). Render: median ms for 2048 rays with rgb, depth, semantic and "
-        "instance.",
+        "instance. *Inputs*: `RGB + depth` when the scene's depth maps supervise training (what every preset does "
+        "with a scene that has them, as the synthetic scenes do); `RGB` is the paper's setting (`--losses.depth 0`). "
+        "3D metrics score the exported point cloud against `gt/points.ply` at τ = 1 % of its diagonal; 3D mIoU is "
+        "strict and counts GT points with no exported point within τ as void predictions (DESIGN.md section 4).",
         "",
         "| scene | noise | inputs | preset | seed | train s | peak MB | render ms | PSNR | mIoU (2D) | PQ^scene (2D) | "
         "SQ | RQ | 3D F-score | 3D mIoU |",
