@@ -154,6 +154,22 @@ def test_exploding_learning_rate_is_detected_and_checkpoint_kept(tiny_indoor, tm
         assert all(torch.isfinite(v).all() for v in state["model"].values() if v.is_floating_point())
 
 
+def test_a_finite_but_exploding_loss_is_detected_too(tiny_indoor, tmp_path):
+    """lr 1e12 keeps the loss finite (about 1e10: the field collapses) — still a divergence, not a result."""
+    from lift3d.errors import TrainingDiverged
+
+    overrides = json.loads(json.dumps(TINY))
+    overrides["optim"].update(steps=60, lr_grid=1e12, lr_mlp=1e12, max_bad_steps=3, warmup_steps=1)
+    overrides["trainer"].update(eval_every=0, checkpoint_every=1000)
+    with pytest.raises(TrainingDiverged, match="above 1000 x its first value"):
+        train(tiny_indoor, preset="fast", output_dir=tmp_path, overrides=overrides, progress=False,
+              print_summary=False)
+    # With the check off, the same run "succeeds": what the check is for.
+    overrides["optim"].update(divergence_factor=0.0, steps=8)
+    train(tiny_indoor, preset="fast", output_dir=tmp_path / "off", overrides=overrides, progress=False,
+          print_summary=False)
+
+
 def test_cli_trains_several_scenes_from_a_list_file(tiny_indoor, tmp_path, capsys):
     from lift3d.cli.main import main
 

@@ -67,7 +67,11 @@ class OptimConfig:
     warmup_steps: int = 50
     """Linear learning-rate warm-up."""
     max_bad_steps: int = 20
-    """Consecutive steps with a non-finite loss before training stops (the step is skipped otherwise)."""
+    """Consecutive bad steps (non-finite loss, or one above ``divergence_factor`` × the first loss) before
+    training stops; a bad step is skipped."""
+    divergence_factor: float = 1e3
+    """A finite loss above this multiple of the process's first loss counts as a bad step: a learning rate
+    that explodes without overflowing otherwise "trains" a collapsed field to the end. 0 disables."""
 
 
 @dataclass

@@ -216,6 +216,7 @@ class Trainer:
         self.step = 0
         self.train_seconds = 0.0  # training time before this process (resumed runs)
         self._fit_start: float | None = None
+        self._first_loss: float | None = None  # reference for the divergence check
         self.perceptual = None
         if cfg.losses.feature > 0 and cfg.data.patch_size > 0:
             from lift3d.train.perceptual import build_perceptual_prior
@@ -339,7 +340,13 @@ class Trainer:
         self.optimizer.zero_grad(set_to_none=False)
         terms = self.losses(batch)
         total = terms["total"]
-        if not all_ranks_agree(bool(torch.isfinite(total)), self.ctx):
+        good = bool(torch.isfinite(total))
+        factor = self.cfg.optim.divergence_factor
+        if good and factor > 0:
+            if self._first_loss is None:
+                self._first_loss = float(total.detach())
+            good = float(total.detach()) <= factor * max(self._first_loss, 1e-8)
+        if not all_ranks_agree(good, self.ctx):
             self.optimizer.zero_grad(set_to_none=False)
             return None
         total.backward()
@@ -395,7 +402,8 @@ class Trainer:
                     bad += 1
                     if bad >= cfg.optim.max_bad_steps:
                         raise TrainingDiverged(
-                            f"the loss was not finite for {bad} consecutive steps at step {self.step}; the last good "
+                            f"the loss was not finite (or above {cfg.optim.divergence_factor:g} x its first value) for "
+                            f"{bad} consecutive steps at step {self.step}; the last good "
                             f"checkpoint in {self.run.checkpoint_dir} is intact (lower the learning rates and --resume)"
                         )
                     continue
