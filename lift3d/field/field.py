@@ -83,6 +83,9 @@ class FieldConfig:
     """Cells of an R³ lattice over the grid's space that no training camera sees get zero density (as
     instant-NGP marks untrained cells): space behind every camera gets no gradient, keeps its opaque initial
     density and would fog novel views and the export. 0 disables."""
+    clip_to_scene_box: bool = True
+    """Bounded scenes with a ``scene_box`` in transforms.json: the lattice also zeroes space outside that
+    box (the normalised cube is padded and cubic). Turn off when the declared box is too tight."""
     mlp_width: int = 256
     """Base (``kind=mlp``): trunk width."""
     mlp_depth: int = 6

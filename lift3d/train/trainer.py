@@ -187,7 +187,7 @@ class Trainer:
         if cfg.field.observed_resolution > 0:  # (a resumed run loads its own lattice with the checkpoint)
             cams = replace(scene.cameras, c2w=norm.c2w_normalized(scene.cameras.c2w))
             box = None
-            if scene.scene_box is not None and norm.bounded:
+            if scene.scene_box is not None and norm.bounded and cfg.field.clip_to_scene_box:
                 box = np.sort(norm.to_normalized(np.asarray(scene.scene_box.aabb, float)), axis=0)
             self.model.field.space.observed = observed_cells(
                 self.model.field.space, cams, scene.split("train"), cfg.field.observed_resolution,
