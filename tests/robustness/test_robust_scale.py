@@ -62,8 +62,12 @@ def _train_eval_export(root, out):
     from lift3d.export import export_run
     from lift3d.train.trainer import train
 
+    # RGB only: depth supervision's line-of-sight term has a hard band edge, so float32 rounding of the
+    # scaled depth maps can flip single samples across it and the runs drift apart beyond float32 noise
+    # (docs/robustness.md, known gaps).
     result = train(root, preset="fast", output_dir=out, progress=False, print_summary=False,
-                   overrides=tiny(optim={"steps": 20}, trainer={"checkpoint_every": 0, "eval_images": 1}))
+                   overrides=tiny(optim={"steps": 20}, trainer={"checkpoint_every": 0, "eval_images": 1},
+                                  losses={"depth": 0.0}))
     metrics = evaluate_run(result.run.path, split="test", with_points3d=False, progress=False, timing_repeats=0)
     summary = export_run(result.run.path, out / "export", source="rays", num_points=4000)
     from lift3d import load_labelled_points
