@@ -139,12 +139,18 @@ def test_outdoor_scene_trains_unbounded_without_nan(tmp_path):
     assert np.isfinite(result.summary["eval"]["psnr"])
 
 
+def _exploding(lr: float) -> dict:
+    """TINY with both learning rates at ``lr``, stopping after 3 bad steps, no evaluation."""
+    overrides = json.loads(json.dumps(TINY))
+    overrides["optim"].update(steps=60, lr_grid=lr, lr_mlp=lr, max_bad_steps=3, warmup_steps=1)
+    overrides["trainer"].update(eval_every=0, checkpoint_every=1000)
+    return overrides
+
+
 def test_exploding_learning_rate_is_detected_and_checkpoint_kept(tiny_indoor, tmp_path):
     from lift3d.errors import TrainingDiverged
 
-    overrides = json.loads(json.dumps(TINY))
-    overrides["optim"].update(steps=60, lr_grid=1e30, lr_mlp=1e30, max_bad_steps=3, warmup_steps=1)
-    overrides["trainer"].update(eval_every=0, checkpoint_every=1000)
+    overrides = _exploding(1e30)
     with pytest.raises(TrainingDiverged, match="not finite|non-finite"):
         train(tiny_indoor, preset="fast", output_dir=tmp_path, overrides=overrides, progress=False,
               print_summary=False)
@@ -158,9 +164,7 @@ def test_a_finite_but_exploding_loss_is_detected_too(tiny_indoor, tmp_path):
     """lr 1e12 keeps the loss finite (about 1e10: the field collapses) — still a divergence, not a result."""
     from lift3d.errors import TrainingDiverged
 
-    overrides = json.loads(json.dumps(TINY))
-    overrides["optim"].update(steps=60, lr_grid=1e12, lr_mlp=1e12, max_bad_steps=3, warmup_steps=1)
-    overrides["trainer"].update(eval_every=0, checkpoint_every=1000)
+    overrides = _exploding(1e12)
     with pytest.raises(TrainingDiverged, match="above 1000 x its first value"):
         train(tiny_indoor, preset="fast", output_dir=tmp_path, overrides=overrides, progress=False,
               print_summary=False)
