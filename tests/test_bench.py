@@ -30,6 +30,17 @@ def test_bench_quick_writes_every_report(tmp_path):
         assert r["pseudo_labels"]["miou"] is not None and r["points3d"]["fscore"] is not None
     assert [r["variant"] for r in results["ablation"]] == ["base", "base+S", "base+S+L_seg", "base+S+L_feat", "all"]
     assert {s["factor"] for s in results["scaling"]} == {"resolution", "views", "instance_channels", "classes"}
+    ex = results["export"]
+    assert ex["points"] > 0 and ex["seconds"] > 0 and ex["peak_rss_mb"] > 100 and ex["preset"] == "fast"
+    prof = results["profile"]
+    assert prof["step_ms"] > 0 and prof["render_ms"] > 0
+    stages = {r["name"] for r in prof["train"]["stages"]}
+    assert {"step.sample_batch", "step.forward_and_losses", "step.backward", "step.optimizer",
+            "render.field_geometry"} <= stages
+    assert "render.field_geometry" in {r["name"] for r in prof["render"]["stages"]}
+    for block in (prof["train"], prof["render"]):
+        assert block["ops"] and all(r["self_ms"] >= 0 for r in block["ops"])
+        assert sum(r["percent"] for r in block["ops"]) <= 100.0 + 1e-6
     rows = list(csv.DictReader((out / "results.csv").open()))
     assert len(rows) == len(runs) + len(results["ablation"])
     for name in ("pareto.png", "scaling.png", "benchmarks.md"):
@@ -37,6 +48,8 @@ def test_bench_quick_writes_every_report(tmp_path):
     md = (tmp_path / "docs" / "benchmarks.md").read_text()
     assert results["machine"]["cpu"] in md and "| indoor | hard | RGB + depth | fast |" in md
     assert "| indoor | moderate | RGB | fast |" in md
+    assert "## Where the time goes" in md and "`step.backward`" in md
+    assert "## Export: labelled points" in md
     # Resumable: a second run reuses every cached measurement (fast, same numbers).
     proc2 = subprocess.run(cmd, capture_output=True, text=True, timeout=300)
     assert proc2.returncode == 0

@@ -9,7 +9,10 @@ Everything is measured on this machine in one benchmark run (the report names th
 * **ablation** (paper Table 6) — Base (plain MLP field), +S (the voxel-grid model), +L_seg, +L_feat, all; the
   same wall-time budget for every variant (the learning-rate schedule follows the budget);
 * **scaling** — training-step and render time and peak memory against image resolution, number of views,
-  instance channels V and semantic classes U.
+  instance channels V and semantic classes U;
+* **export** — time and peak memory of a 1M-point labelled export of the first preset's indoor run;
+* **profile** — where one training step and one 2048-ray render of the first preset spend their time
+  (``torch.profiler``: named stages and the operators with the most self time).
 
 Each measurement runs in its own process (:mod:`lift3d.bench.worker`) and is cached as JSON under
 ``OUT/cache``: an interrupted benchmark resumes where it stopped. Results: ``OUT/results.json``,
@@ -78,6 +81,8 @@ class BenchConfig:
     ablation: bool = True
     ablation_budget: float = 300.0
     scaling: bool = True
+    export: bool = True
+    profile: bool = True
     quick: bool = False
     docs_dir: Path | None = None
     progress: bool = True
@@ -168,7 +173,7 @@ def run_benchmark(cfg: BenchConfig) -> dict:
     quick_over = _QUICK_TRAIN if cfg.quick else {}
     results: dict[str, Any] = {"machine": machine_info(), "created": _dt.datetime.now().isoformat(timespec="seconds"),
                                "quick": cfg.quick, "runs": [], "ablation": [], "parameterisation": [],
-                               "scaling": []}
+                               "scaling": [], "export": None, "profile": None}
 
     jobs: list[tuple[str, dict, Path, dict]] = []
     for kind in cfg.scenes:
@@ -217,8 +222,20 @@ def run_benchmark(cfg: BenchConfig) -> dict:
                      and r["seed"] == cfg.seeds[0]]
         results["parameterisation"] = [dict(r, variant="unbounded") for r in unbounded[:1]] + results["parameterisation"]
 
+    first = [r for r in results["runs"] if r["scene"] == "indoor" and r["noise"] == "moderate"
+             and r["preset"] == cfg.presets[0] and r["variant"] == "all" and r["seed"] == cfg.seeds[0]]
+    if cfg.export and first:
+        spec = {"kind": "export", "run": first[0]["run"], "num_points": 20_000 if cfg.quick else 1_000_000}
+        results["export"] = dict(_worker(spec, cache / f"export_indoor_{cfg.presets[0]}.json"),
+                                 preset=cfg.presets[0])
     if cfg.scaling:
         results["scaling"] = run_scaling(cfg, cache)
+    if cfg.profile and "indoor" in cfg.scenes:
+        scene = _scene(cfg, "indoor", cfg.seeds[0], "moderate")
+        spec = {"kind": "profile", "scene": str(scene), "preset": cfg.presets[0], "overrides": quick_over,
+                "output_dir": str(cfg.out / "runs" / "profile"), "warmup": 2 if cfg.quick else 10,
+                "steps": 2 if cfg.quick else 10, "repeats": 2 if cfg.quick else 10}
+        results["profile"] = _worker(spec, cache / f"profile_{cfg.presets[0]}.json")
     write_reports(results, cfg)
     return results
 
@@ -418,5 +435,59 @@ def benchmarks_markdown(results: dict, pictures: dict[str, str]) -> str:
                          f"{_f(r['peak_rss_mb'], 0)} | {r['grid_resolution']} | {r['pixels']} |")
         if "scaling" in pictures:
             lines += ["", f"![scaling]({pictures['scaling']})"]
+    if results.get("export"):
+        lines += export_markdown(results["export"])
+    if results.get("profile"):
+        lines += profile_markdown(results["profile"])
     lines += ["", "Reproduce: `lift3d bench --out bench_out` (resumable; `--quick` for the CI smoke test).", ""]
     return "\n".join(lines)
+
+
+def profile_markdown(prof: dict) -> list[str]:
+    """The "where the time goes" section: stages and top operators of a training step and of a render."""
+    b = prof.get("batch", {})
+    rays = b.get("images_per_batch", 0) * (b.get("patch_size", 0) ** 2 + b.get("rays_per_image", 0))
+    lines = [
+        "",
+        "## Where the time goes",
+        "",
+        f"`torch.profiler` on the indoor scene, preset `{prof['preset']}`, {prof['threads']} "
+        f"thread{'s' if prof['threads'] != 1 else ''}: "
+        f"{prof['steps']} training steps ({rays} rays each, {b.get('num_samples', '–')} field samples per ray "
+        f"after the proposal) and {prof['repeats']} renders of 2048 rays, after warm-up. Unprofiled medians in "
+        f"the same process: **{_f(prof['step_ms'], 1)} ms per step**, **{_f(prof['render_ms'], 1)} ms per "
+        "render**; the profiler's own overhead makes its totals larger. Stages are our `record_function` labels "
+        "(inclusive: `render.*` nests inside `step.forward_and_losses`); operators are ranked by self time "
+        "(`aten::` ops; `...Backward` rows are autograd's).",
+    ]
+    for key, title in (("train", "training step"), ("render", "render of 2048 rays")):
+        block = prof[key]
+        lines += ["", f"**{title}** (profiled total {_f(block['profiled_ms'], 1)} ms)", "",
+                  "| stage | ms | calls |", "|---|---|---|"]
+        lines += [f"| `{r['name']}` | {_f(r['ms'], 1)} | {_f(r['calls'], 1)} |" for r in block["stages"]]
+        lines += ["", "| operator | self ms | share | calls |", "|---|---|---|---|"]
+        lines += [f"| `{r['name']}` | {_f(r['self_ms'], 1)} | {_f(r['percent'], 1)} % | {_f(r['calls'], 0)} |"
+                  for r in block["ops"]]
+    return lines
+
+
+def export_markdown(ex: dict) -> list[str]:
+    """The export section: one labelled point-cloud export of the indoor run, timed in a fresh process."""
+    stages = ", ".join(f"{k} {_f(v, 1)} s" for k, v in ex.get("stages", {}).items())
+    return [
+        "",
+        "## Export: labelled points",
+        "",
+        f"`lift3d export --pointcloud` of the indoor `{ex.get('preset', '–')}` run above, in a fresh process "
+        f"({ex['threads']} thread{'s' if ex['threads'] != 1 else ''}): extraction (isosurface, visibility, "
+        "labels from the heads, instances) plus writing `points.ply`. Loading the checkpoint and importing "
+        "Open3D/PyVista are not included. Targets for 1M points: 5 s (PERFORMANCE.md), and at most 30 s and "
+        "3 GiB peak memory.",
+        "",
+        "| points | seconds | extract s | write s | peak MB | load s |",
+        "|---|---|---|---|---|---|",
+        f"| {ex['points']:,} | {_f(ex['seconds'], 1)} | {_f(ex['extract_seconds'], 1)} | "
+        f"{_f(ex['write_seconds'], 1)} | {_f(ex['peak_rss_mb'], 0)} | {_f(ex['load_seconds'], 1)} |",
+        "",
+        f"Extraction stages: {stages or '–'}.",
+    ]

@@ -6,6 +6,11 @@
   train, then ``lift3d eval`` (2D, pseudo-label baseline, 3D through the export path, render timing).
 * ``{"kind": "scaling", "scene": DIR, "overrides": {...}, "steps": N, "repeats": N}``: median training-step
   and render times of a model built for that scene, and the peak memory.
+* ``{"kind": "export", "run": RUN, "num_points": N}``: time and peak memory of a labelled point-cloud export
+  of a trained run (:func:`lift3d.export.pointcloud.benchmark_export`).
+* ``{"kind": "profile", "scene": DIR, "preset": NAME, "steps": N, "repeats": N}``: where the time of one
+  training step and of one 2048-ray render goes (``torch.profiler``: the named stages and the operators with
+  the most self time), next to the unprofiled medians.
 
 The result is written atomically to OUT.json; the benchmark skips specs whose result already exists.
 """
@@ -45,8 +50,8 @@ def run_train(spec: dict) -> dict:
     })
 
 
-def run_scaling(spec: dict) -> dict:
-    import numpy as np
+def _trainer(spec: dict):
+    """A fresh trainer for the spec's scene and preset (CPU), and the thread count in use."""
     import torch
 
     from lift3d.data.scene import load_scene
@@ -58,24 +63,46 @@ def run_scaling(spec: dict) -> dict:
     scene = load_scene(spec["scene"])
     cfg, norm = resolve_config(scene, spec.get("preset", "fast"), spec.get("overrides", {}))
     run = RunFolder.create(spec["output_dir"], scene.name, cfg.preset)
-    trainer = Trainer(scene, cfg, norm, run, torch.device("cpu"), progress=False)
-    warmup, steps = int(spec.get("warmup", 10)), int(spec.get("steps", 20))
+    return Trainer(scene, cfg, norm, run, torch.device("cpu"), progress=False), scene, cfg, threads
+
+
+def _timed_steps(trainer, n: int) -> list[float]:
+    """Seconds of each of ``n`` training steps."""
     times = []
-    for k in range(warmup + steps):
+    for _ in range(n):
         t0 = time.perf_counter()
         trainer.train_step()
         trainer.step += 1
-        if k >= warmup:
-            times.append(time.perf_counter() - t0)
+        times.append(time.perf_counter() - t0)
+    return times
+
+
+def _render_rays(trainer, scene):
+    """The first 2048 rays of the first test view, and a function that renders them once."""
     model = trainer.model.eval()
     o, d, _, _ = trainer.rays.image_rays(int(scene.split("test")[0]))
     o, d = o[:2048], d[:2048]
-    render = []
-    for k in range(2 + int(spec.get("repeats", 10))):
+    return lambda: model.render_chunked(o, d, chunk_size=2048)
+
+
+def _timed_calls(fn, n: int, warmup: int = 2) -> list[float]:
+    for _ in range(warmup):
+        fn()
+    times = []
+    for _ in range(n):
         t0 = time.perf_counter()
-        model.render_chunked(o, d, chunk_size=2048)
-        if k >= 2:
-            render.append(time.perf_counter() - t0)
+        fn()
+        times.append(time.perf_counter() - t0)
+    return times
+
+
+def run_scaling(spec: dict) -> dict:
+    import numpy as np
+
+    trainer, scene, cfg, threads = _trainer(spec)
+    warmup, steps = int(spec.get("warmup", 10)), int(spec.get("steps", 20))
+    times = _timed_steps(trainer, warmup + steps)[warmup:]
+    render = _timed_calls(_render_rays(trainer, scene), int(spec.get("repeats", 10)))
     return {
         "step_ms": 1e3 * float(np.median(times)),
         "render_ms": 1e3 * float(np.median(render)),
@@ -88,11 +115,65 @@ def run_scaling(spec: dict) -> dict:
     }
 
 
+def _profile_table(fn, calls: int, top: int) -> dict:
+    """Profile ``calls`` calls of ``fn``: named stages (inclusive) and top operators (self time), ms per call."""
+    from torch.profiler import ProfilerActivity, profile
+
+    with profile(activities=[ProfilerActivity.CPU]) as prof:
+        for _ in range(calls):
+            fn()
+    events = prof.key_averages()
+    total_self = sum(e.self_cpu_time_total for e in events) or 1.0
+    # Our own record_function labels ("step.*", "render.*") nest, so they are reported inclusive.
+    stages = [{"name": e.key, "ms": e.cpu_time_total / 1e3 / calls, "calls": e.count / calls}
+              for e in events if e.key.startswith(("step.", "render."))]
+    ops = [{"name": e.key, "self_ms": e.self_cpu_time_total / 1e3 / calls,
+            "percent": 100.0 * e.self_cpu_time_total / total_self, "calls": e.count / calls}
+           for e in sorted(events, key=lambda e: -e.self_cpu_time_total)
+           if not e.key.startswith(("step.", "render."))][:top]
+    return {"profiled_ms": total_self / 1e3 / calls, "stages": sorted(stages, key=lambda r: -r["ms"]), "ops": ops}
+
+
+def run_profile(spec: dict) -> dict:
+    """Where a training step and a 2048-ray render spend their time (after warm-up, one process)."""
+    import numpy as np
+
+    trainer, scene, cfg, threads = _trainer(spec)
+    warmup, steps, top = int(spec.get("warmup", 10)), int(spec.get("steps", 10)), int(spec.get("top", 12))
+    step_times = _timed_steps(trainer, warmup + steps)[warmup:]
+
+    def step():
+        trainer.train_step()
+        trainer.step += 1
+
+    train = _profile_table(step, steps, top)
+    render_fn = _render_rays(trainer, scene)
+    repeats = int(spec.get("repeats", 10))
+    render_times = _timed_calls(render_fn, repeats)
+    render = _profile_table(render_fn, repeats, top)
+    return {
+        "preset": cfg.preset, "threads": threads, "steps": steps, "repeats": repeats,
+        "step_ms": 1e3 * float(np.median(step_times)), "render_ms": 1e3 * float(np.median(render_times)),
+        "train": train, "render": render,
+        "batch": {"images_per_batch": cfg.data.images_per_batch, "rays_per_image": cfg.data.rays_per_image,
+                  "patch_size": cfg.data.patch_size, "num_samples": cfg.sampling.num_samples},
+    }
+
+
+def run_export(spec: dict) -> dict:
+    from lift3d.export.pointcloud import benchmark_export
+    from lift3d.utils.device import set_threads
+
+    set_threads()
+    return benchmark_export(spec["run"], num_points=int(spec.get("num_points", 1_000_000)))
+
+
 def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else argv
     spec = json.loads(Path(argv[0]).read_text())
     out = Path(argv[1])
-    result = run_train(spec) if spec["kind"] == "train" else run_scaling(spec)
+    kinds = {"train": run_train, "scaling": run_scaling, "profile": run_profile, "export": run_export}
+    result = kinds[spec["kind"]](spec)
     result["spec"] = spec
     write_json_atomic(out, result)
     return 0

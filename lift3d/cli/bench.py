@@ -43,6 +43,10 @@ def add_parser(subparsers, verb: str) -> argparse.ArgumentParser:
     p.add_argument("--ablation-budget", type=float, default=300.0, metavar="S",
                    help="wall-time budget per ablation variant in seconds (default: 300)")
     p.add_argument("--no-scaling", action="store_true", help="skip the scaling measurements")
+    p.add_argument("--no-export", action="store_true",
+                   help="skip timing a 1M-point labelled export of the indoor run")
+    p.add_argument("--no-profile", action="store_true",
+                   help="skip the profile of one training step and one 2048-ray render")
     p.add_argument("--quick", action="store_true", help="tiny scenes and few steps (a smoke test, minutes)")
     p.add_argument("--docs-dir", metavar="DIR",
                    help="also write benchmarks.md and its pictures here (default: the checkout's docs/ for a full "
@@ -61,7 +65,8 @@ def run(args: argparse.Namespace) -> int:
     cfg = BenchConfig(out=Path(args.out), scenes=args.scenes, presets=args.presets, seeds=args.seeds,
                       hard_noise=not args.no_hard, rgb_only=not args.no_rgb_only, bounded_check=not args.no_bounded,
                       ablation=not args.no_ablation,
-                      ablation_budget=args.ablation_budget, scaling=not args.no_scaling, quick=args.quick,
+                      ablation_budget=args.ablation_budget, scaling=not args.no_scaling, export=not args.no_export, profile=not args.no_profile,
+                      quick=args.quick,
                       docs_dir=docs)
     results = run_benchmark(cfg)
     print(f"wrote {cfg.out / 'results.json'}, {cfg.out / 'benchmarks.md'}"

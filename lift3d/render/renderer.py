@@ -15,6 +15,7 @@ from dataclasses import dataclass
 
 import torch
 from torch import Tensor, nn
+from torch.profiler import record_function
 
 from lift3d.render.samplers import interlevel_loss, ray_aabb, sample_pdf, spacing_fn, spacing_fn_inv, uniform_edges
 from lift3d.render.volume import composite, interval_midpoints, render_weights
@@ -140,18 +141,20 @@ def render_rays(
         x = origins[:, None, :] + dirs[:, None, :] * t_mid[..., None]
         return x.reshape(-1, 3), t_mid, deltas
 
+    # record_function labels name the stages in `lift3d bench`'s profile (no cost without a profiler).
     prop_levels: list[tuple[Tensor, Tensor]] = []
     if len(proposals):
         s_edges = uniform_edges(near, far, cfg.proposal_samples[0], spacing, training, generator)
-        for level, prop in enumerate(proposals):
-            x, _, deltas = points(s_edges)
-            u, valid = space(x)
-            sigma = prop(u, valid).view(n_rays, -1)
-            w, _ = render_weights(sigma, deltas)
-            prop_levels.append((s_edges, w))
-            n_next = cfg.proposal_samples[level + 1] if level + 1 < len(proposals) else cfg.num_samples
-            w_resample = w if proposal_anneal >= 1.0 else w.detach().clamp_min(0) ** proposal_anneal
-            s_edges = sample_pdf(s_edges, w_resample, n_next, training, generator=generator)
+        with record_function("render.proposal"):
+            for level, prop in enumerate(proposals):
+                x, _, deltas = points(s_edges)
+                u, valid = space(x)
+                sigma = prop(u, valid).view(n_rays, -1)
+                w, _ = render_weights(sigma, deltas)
+                prop_levels.append((s_edges, w))
+                n_next = cfg.proposal_samples[level + 1] if level + 1 < len(proposals) else cfg.num_samples
+                w_resample = w if proposal_anneal >= 1.0 else w.detach().clamp_min(0) ** proposal_anneal
+                s_edges = sample_pdf(s_edges, w_resample, n_next, training, generator=generator)
     else:
         s_edges = uniform_edges(near, far, cfg.num_samples, spacing, training, generator)
     if training and depth_target is not None and cfg.depth_guide_samples > 0:
@@ -160,7 +163,8 @@ def render_rays(
 
     x, t_mid, deltas = points(s_edges)
     n_samples = t_mid.shape[1]
-    sigma, geo, u = field.geometry(x)
+    with record_function("render.field_geometry"):
+        sigma, geo, u = field.geometry(x)
     if training and cfg.near_gradient_distance > 0:
         near_scale = (t_mid.detach() / cfg.near_gradient_distance).square().clamp(max=1.0).reshape(-1)
         sigma = scale_gradient(sigma, near_scale)
@@ -172,7 +176,8 @@ def render_rays(
     idx = keep.nonzero().squeeze(1)
     dirs_s = dirs[:, None, :].expand(n_rays, n_samples, 3).reshape(-1, 3)
     rgb_s = geo.new_zeros(n_rays * n_samples, 3)
-    rgb_s = rgb_s.index_copy(0, idx, field.color(geo.index_select(0, idx), dirs_s.index_select(0, idx)))
+    with record_function("render.field_color"):
+        rgb_s = rgb_s.index_copy(0, idx, field.color(geo.index_select(0, idx), dirs_s.index_select(0, idx)))
     rgb = composite(weights, rgb_s.view(n_rays, n_samples, 3))
     opacity = weights.sum(-1)
 
@@ -190,7 +195,8 @@ def render_rays(
     if with_labels:
         w_det = weights.detach()  # labels must not carve geometry
         lidx = _label_samples(w_det, cfg) if 0 < cfg.label_max_samples < n_samples else idx
-        sem_s, inst_s = field.labels(u.index_select(0, lidx), geo.index_select(0, lidx))
+        with record_function("render.field_labels"):
+            sem_s, inst_s = field.labels(u.index_select(0, lidx), geo.index_select(0, lidx))
         semantic = composite(w_det, _scatter_rows(sem_s, lidx, n_rays * n_samples).view(n_rays, n_samples, -1))
         if inst_s is not None:
             instance = composite(w_det, _scatter_rows(inst_s, lidx, n_rays * n_samples).view(n_rays, n_samples, -1))
