@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import colorsys
 import json
+import os
 from dataclasses import dataclass
 
 import imageio.v3 as iio
@@ -438,3 +439,26 @@ def test_show_opens_a_window(export_dir, monkeypatch):
     monkeypatch.setattr(pv.Plotter, "show", fake_show)
     assert main(["plot", str(export_dir / "points.ply"), "--show", "--window-size", "300", "150"]) == 0
     assert shown == [False]
+
+
+def test_headless_linux_renders_through_egl_without_probing_x(monkeypatch):
+    """No display + libEGL: EGL is chosen (no "bad X server connection" warning); a display or the user's own
+    choice of window class is left alone."""
+    import ctypes.util
+    import sys
+
+    monkeypatch.setattr(sys, "platform", "linux")
+    monkeypatch.setattr(ctypes.util, "find_library", lambda name: "libEGL.so.1" if name == "EGL" else None)
+    for var in ("DISPLAY", "WAYLAND_DISPLAY", "VTK_DEFAULT_OPENGL_WINDOW"):
+        monkeypatch.delenv(var, raising=False)
+    assert points.prefer_headless_egl()
+    assert os.environ["VTK_DEFAULT_OPENGL_WINDOW"] == "vtkEGLRenderWindow"
+    monkeypatch.setenv("VTK_DEFAULT_OPENGL_WINDOW", "vtkOSOpenGLRenderWindow")
+    assert not points.prefer_headless_egl()
+    assert os.environ["VTK_DEFAULT_OPENGL_WINDOW"] == "vtkOSOpenGLRenderWindow"
+    monkeypatch.delenv("VTK_DEFAULT_OPENGL_WINDOW")
+    monkeypatch.setenv("DISPLAY", ":0")
+    assert not points.prefer_headless_egl() and "VTK_DEFAULT_OPENGL_WINDOW" not in os.environ
+    monkeypatch.delenv("DISPLAY")
+    monkeypatch.setattr(ctypes.util, "find_library", lambda name: None)
+    assert not points.prefer_headless_egl()

@@ -192,54 +192,61 @@ def plot_pareto(results: dict | str | Path, path: str | Path, *, title: str | No
         if not isinstance(r, dict) or not r.get("preset"):
             raise InputError(where, f"runs[{k}].preset is missing")
     presets = sorted({str(r["preset"]) for r in runs}, key=_preset_key)
-    variants = sorted({str(r.get("variant") or "default") for r in runs})
+    # Runs are only compared within a scene (scene kind and noise): averaging different scenes would mix
+    # their difficulty into the preset's point. Seeds of the same scene/preset/variant are averaged.
+    scenes = sorted({_scene_label(r) for r in runs})
+    default_variants = {"all", "default", "full"}
     marker = {p: _MARKERS[i % len(_MARKERS)] for i, p in enumerate(presets)}
     cmap = plt.get_cmap("tab10")
-    color = {v: cmap(i % 10) for i, v in enumerate(variants)}
-    groups: dict[tuple[str, str], list[dict]] = {}
+    color = {sc: cmap(i % 10) for i, sc in enumerate(scenes)}
+    groups: dict[tuple[str, str, str], list[dict]] = {}
     for r in runs:
-        groups.setdefault((str(r["preset"]), str(r.get("variant") or "default")), []).append(r)
-    group_keys = sorted(groups, key=lambda g: (_preset_key(g[0]), g[1]))
+        groups.setdefault((_scene_label(r), str(r["preset"]), str(r.get("variant") or "default")), []).append(r)
+    group_keys = sorted(groups, key=lambda g: (g[0], g[2], _preset_key(g[1])))
 
     fig, axes = plt.subplots(len(_COSTS), len(_METRICS), figsize=(14, 8), squeeze=False)
     for row, (cost_key, cost_label) in enumerate(_COSTS):
         for col, (metric, metric_label, base_key) in enumerate(_METRICS):
             ax = axes[row, col]
-            means_x, means_y = [], []
+            curves: dict[tuple[str, str], tuple[list[float], list[float]]] = {}
             for g in group_keys:
+                sc, preset, variant = g
                 xs = np.array([_num(r.get(cost_key)) for r in groups[g]])
                 ys = np.array([_num(r.get(metric)) for r in groups[g]])
                 ok = np.isfinite(xs) & np.isfinite(ys)
                 if not ok.any():
-                    means_x.append(math.nan)
-                    means_y.append(math.nan)
                     continue
                 mx, my = float(xs[ok].mean()), float(ys[ok].mean())
-                means_x.append(mx)
-                means_y.append(my)
+                cx, cy = curves.setdefault((sc, variant), ([], []))
+                cx.append(mx)
+                cy.append(my)
+                hollow = variant not in default_variants
                 if ok.sum() > 1:  # single runs behind the mean, so the spread is visible
-                    ax.scatter(xs[ok], ys[ok], marker=marker[g[0]], color=color[g[1]], alpha=0.25, s=18, lw=0)
+                    ax.scatter(xs[ok], ys[ok], marker=marker[preset], color=color[sc], alpha=0.25, s=18, lw=0)
                 ax.errorbar(mx, my, xerr=float(xs[ok].std()) if ok.sum() > 1 else None,
-                            yerr=float(ys[ok].std()) if ok.sum() > 1 else None, fmt=marker[g[0]],
-                            color=color[g[1]], ms=9, mec="black", mew=0.6, capsize=3, lw=1)
+                            yerr=float(ys[ok].std()) if ok.sum() > 1 else None, fmt=marker[preset],
+                            color=color[sc], mfc="none" if hollow else color[sc], ms=9,
+                            mec=color[sc] if hollow else "black", mew=1.5 if hollow else 0.6, capsize=3, lw=1)
                 if col == 0:  # names once per row; the legend says the rest
-                    ax.annotate(g[0] if len(variants) == 1 else f"{g[0]}/{g[1]}", (mx, my),
+                    ax.annotate(preset if not hollow else f"{preset} ({variant})", (mx, my),
                                 textcoords="offset points", xytext=(6, 5), fontsize=8)
-            front = pareto_front(means_x, means_y)
-            if len(front) > 1:
-                fx, fy = np.array(means_x)[front], np.array(means_y)[front]
-                ax.step(fx, fy, where="post", ls="--", color="grey", lw=1, zorder=0)
+            for (sc, _variant), (cx, cy) in curves.items():
+                front = pareto_front(cx, cy)
+                if len(front) > 1:
+                    ax.step(np.array(cx)[front], np.array(cy)[front], where="post", ls="--", color=color[sc],
+                            lw=1, zorder=0)
             if base_key:
-                # The baseline does not depend on the preset: average it per scene, then over scenes.
-                per_scene: dict[str, list[float]] = {}
-                for r in runs:
-                    pl = r.get("pseudo_labels") if isinstance(r.get("pseudo_labels"), dict) else {}
-                    per_scene.setdefault(str(r.get("scene", "")), []).append(_num(pl.get(base_key)))
-                scene_means = [np.nanmean(v) for v in per_scene.values() if np.isfinite(v).any()]
-                if scene_means:
-                    ax.axhline(float(np.mean(scene_means)), color="crimson", ls=":", lw=1.5,
-                               label="2D pseudo-labels")
-                    ax.legend(loc="lower right", fontsize=8)
+                # The baseline does not depend on the preset: one dotted line per scene.
+                for sc in scenes:
+                    vals = [_num((r.get("pseudo_labels") if isinstance(r.get("pseudo_labels"), dict) else {})
+                                 .get(base_key)) for r in runs if _scene_label(r) == sc]
+                    vals = [v for v in vals if np.isfinite(v)]
+                    if vals:
+                        y = float(np.mean(vals))
+                        ax.axhline(y, color="crimson", ls=":", lw=1.5)
+                        if len(scenes) > 1:
+                            ax.annotate(sc, (1.0, y), xycoords=("axes fraction", "data"), xytext=(-3, 2),
+                                        textcoords="offset points", ha="right", fontsize=7, color="crimson")
             xs_all = np.array([_num(r.get(cost_key)) for r in runs])
             xs_all = xs_all[np.isfinite(xs_all) & (xs_all > 0)]
             if xs_all.size and xs_all.max() / xs_all.min() > 5:
@@ -251,21 +258,29 @@ def plot_pareto(results: dict | str | Path, path: str | Path, *, title: str | No
             ax.set_xlabel(cost_label)
             ax.set_ylabel(metric_label)
             ax.grid(alpha=0.3)
-    # One legend for the figure: marker = preset, colour = variant.
+    # One legend for the figure: marker = preset, colour = scene, hollow = a non-default variant.
     from matplotlib.lines import Line2D
 
     handles = [Line2D([], [], marker=marker[p], ls="", color="grey", mec="black", ms=8, label=p) for p in presets]
-    if len(variants) > 1:
-        handles += [Line2D([], [], marker="o", ls="", color=color[v], ms=8, label=f"variant {v}") for v in variants]
-    handles.append(Line2D([], [], ls="--", color="grey", label="Pareto front"))
-    fig.legend(handles=handles, loc="upper center", ncol=len(handles), fontsize=9, frameon=False,
+    handles += [Line2D([], [], marker="o", ls="", color=color[sc], ms=8, label=sc) for sc in scenes]
+    others = sorted({g[2] for g in groups} - default_variants)
+    handles += [Line2D([], [], marker="o", ls="", color="grey", mfc="none", mew=1.5, ms=8, label=v) for v in others]
+    handles.append(Line2D([], [], ls="--", color="grey", label="Pareto front (per scene)"))
+    handles.append(Line2D([], [], ls=":", color="crimson", lw=1.5, label="2D pseudo-labels"))
+    fig.legend(handles=handles, loc="upper center", ncol=min(len(handles), 8), fontsize=9, frameon=False,
                bbox_to_anchor=(0.5, 0.935))
-    n_scenes = len({r.get("scene") for r in runs})
+    n_scenes = len(scenes)
     head = title or f"speed / accuracy of the presets ({len(runs)} runs, {n_scenes} scene{'s' * (n_scenes != 1)})"
     machine = _machine_line(results.get("machine"))
     fig.suptitle(head + (f"\n{machine}" if machine else ""), fontsize=11)
     fig.tight_layout(rect=(0, 0, 1, 0.9))
     return save_figure(fig, path)
+
+
+def _scene_label(run: dict) -> str:
+    """``indoor``, ``indoor (hard)``: the scene kind, and its noise when it is not the default."""
+    noise = run.get("noise")
+    return str(run.get("scene") or "scene") + (f" ({noise})" if noise and noise != "moderate" else "")
 
 
 def plot_scaling(results: dict | str | Path, path: str | Path, *, title: str | None = None) -> Path:

@@ -586,6 +586,8 @@ class InstanceFigure:
             legend_items = [(names.get(int(c), "void" if c <= 0 else f"class_{int(c)}"),
                              semantic_color(int(c), table)[0]) for c in np.unique(geom.semantic)]
         weights = [1.0, 1.0] + ([0.42] if legend_items else [])
+        if off_screen is not False:
+            prefer_headless_egl()
         self.plotter = pl = pv.Plotter(off_screen=off_screen, shape=(1, len(weights)), col_weights=weights,
                                        window_size=list(window_size), border=False)
         view_px = (int(window_size[0] / sum(weights)), window_size[1])
@@ -903,6 +905,24 @@ def save_turntable(points_or_path: Any, path: str | Path, *, frames: int = 36, f
         tmp.unlink(missing_ok=True)
         raise
     return path
+
+
+def prefer_headless_egl() -> bool:
+    """On a headless Linux machine with EGL, render off-screen through EGL without probing X first.
+
+    VTK (≥ 9.4) tries X, then EGL, then OSMesa; with no display the failed X attempt prints a "bad X server
+    connection" warning although the picture then renders fine. When ``DISPLAY``/``WAYLAND_DISPLAY`` are
+    unset, ``libEGL`` is installed and the user has not chosen a window class (``VTK_DEFAULT_OPENGL_WINDOW``),
+    this selects ``vtkEGLRenderWindow`` for the render windows created from now on. Returns whether it did.
+    """
+    import ctypes.util
+
+    if not sys.platform.startswith("linux") or os.environ.get("VTK_DEFAULT_OPENGL_WINDOW"):
+        return False
+    if os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY") or not ctypes.util.find_library("EGL"):
+        return False
+    os.environ["VTK_DEFAULT_OPENGL_WINDOW"] = "vtkEGLRenderWindow"
+    return True
 
 
 def has_display() -> bool:
