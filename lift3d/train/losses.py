@@ -151,8 +151,14 @@ def segment_consistency_loss(sem_logits: Tensor, groups: Tensor, confidence: Ten
     if not bool(valid.any()):
         return sem_logits.sum() * 0.0
     g = groups[valid]
-    probs = torch.softmax(sem_logits[valid].detach(), dim=-1)
+    logits = sem_logits[valid].detach()
+    probs = torch.softmax(logits, dim=-1)
     probs[:, 0] = 0.0  # void is never a target
+    # A ray whose void logit leads by more than ~104 has every other probability underflow to 0 in float32;
+    # it then votes with the distribution over the non-void classes alone (identical argmax, never all-zero).
+    dead = probs.sum(-1) <= 0
+    if bool(dead.any()):
+        probs[dead, 1:] = torch.softmax(logits[dead, 1:], dim=-1)
     n_groups = int(g.max()) + 1
     summed = torch.zeros(n_groups, probs.shape[1], dtype=probs.dtype, device=probs.device).index_add_(0, g, probs)
     dominant = summed.argmax(-1)

@@ -85,6 +85,24 @@ def test_zero_confidence_everywhere_gives_zero_loss_and_zero_gradient():
     assert float(loss) == 0.0 and (logits.grad == 0).all()
 
 
+def test_segment_target_is_never_void_even_when_void_saturates():
+    """Void ahead by 1e4 (every other probability underflows to 0 in float32): the group's target is still
+    its dominant non-void class, the one an exact (float64, renormalised) computation picks."""
+    logits = torch.tensor([[1e4, -3.0, 2.0, 0.5], [1e4, -1.0, 1.0, 3.0], [1e4, 0.0, 2.5, 0.0],
+                           [0.0, 5.0, -2.0, 1.0]], requires_grad=True)
+    segments = torch.tensor([7, 7, 7, 9])
+    groups = segment_groups(torch.zeros(4, dtype=torch.long), segments, 1)
+    loss = segment_consistency_loss(logits, groups, None)
+    loss.backward()
+    lg = logits.detach().double()
+    exact = torch.softmax(lg[:, 1:], -1)  # the non-void distribution, free of void's saturation
+    want = [1 + int(exact[:3].sum(0).argmax()), 1 + int(exact[3:].sum(0).argmax())]
+    assert want == [2, 1]
+    target = torch.tensor([want[0]] * 3 + [want[1]])
+    assert float(loss) == pytest.approx(_nll_reference(lg.numpy(), target.numpy(), None), rel=1e-4)
+    assert torch.isfinite(logits.grad).all()
+
+
 @pytest.mark.parametrize("fn", ["semantic", "segment", "instance"])
 def test_all_void_batch_gives_zero_loss_that_still_backpropagates(fn):
     """Every ray void (semantic 0, segment 0, instance 0): 0, finite, and ``backward`` works (the trainer
