@@ -602,3 +602,17 @@ def test_eight_bit_confidence_png_and_mask(tiny_scene: Path) -> None:
     np.testing.assert_allclose(labels.confidence, expected, rtol=1e-6)
     np.testing.assert_array_equal(scene.mask(1), mask > 0)
     assert scene.mask(0) is None
+
+
+def test_a_category_colour_that_is_not_rgb_is_a_one_line_error(tmp_path):
+    """Both the scene loader and `lift3d convert --categories` validate categories with one parser."""
+    from lift3d.convert.predictions import parse_categories as convert_categories
+    from lift3d.data.scene import parse_categories
+
+    bad = [{"id": 1, "name": "wall", "color": "red"}]
+    for parse in (parse_categories, convert_categories):
+        with pytest.raises(InputError, match=r"categories\[0\]\.color: expected \[r, g, b\]"):
+            parse(bad, tmp_path / "transforms.json")
+    ok = [{"id": 3, "name": "chair", "isthing": 1}]
+    assert parse_categories(ok, tmp_path)[0].color == parse_categories(ok, tmp_path)[0].color  # seeded by id
+    assert convert_categories(ok, tmp_path)[0].isthing

@@ -31,6 +31,7 @@ import numpy as np
 from lift3d.convert import PanopticFrame, distinct_color, generic_categories
 from lift3d.data.images import read_label_map, read_panoptic_png
 from lift3d.data.scene import Category, Segment
+from lift3d.data.scene import parse_categories as parse_scene_categories
 from lift3d.errors import InputError
 from lift3d.utils.progress import progress_bar
 
@@ -56,30 +57,8 @@ def load_categories(path: str | Path) -> list[Category]:
 
 
 def parse_categories(raw: Any, where: Path) -> list[Category]:
-    """Categories from already-parsed JSON (see :func:`load_categories`)."""
-    if not isinstance(raw, list) or not raw:
-        raise InputError(where, "categories: expected a non-empty list of {id, name, isthing[, color]}")
-    out: list[Category] = []
-    seen: set[int] = set()
-    for k, c in enumerate(raw):
-        if not isinstance(c, dict) or "id" not in c:
-            raise InputError(where, f"categories[{k}]: needs an 'id'")
-        try:
-            cid = int(c["id"])
-        except (TypeError, ValueError):
-            raise InputError(where, f"categories[{k}].id: not an integer ({c['id']!r})") from None
-        if cid < 1:
-            raise InputError(where, f"categories[{k}].id: must be >= 1 (0 is void)")
-        if cid in seen:
-            raise InputError(where, f"categories[{k}].id: duplicate id {cid}")
-        seen.add(cid)
-        color = c.get("color")
-        try:
-            color_t = tuple(int(x) for x in color[:3]) if color else distinct_color(k)
-        except (TypeError, ValueError):
-            raise InputError(where, f"categories[{k}].color: expected [r, g, b]") from None
-        out.append(Category(cid, str(c.get("name", f"class_{cid}")), bool(c.get("isthing", 0)), color_t))
-    return out
+    """Categories from already-parsed JSON (see :func:`load_categories`); colours by list position."""
+    return parse_scene_categories(raw, where, default_color=lambda k, cid: distinct_color(k))
 
 
 def panoptic_from_semantic_instance(semantic: np.ndarray, instance: np.ndarray, thing_ids: Iterable[int],

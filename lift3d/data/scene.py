@@ -339,25 +339,47 @@ def _number(meta: dict, key: str, where: Path, field_name: str, default: Any = N
     return out
 
 
-def _categories(raw: Any, where: Path) -> list[Category]:
+def parse_categories(raw: Any, where: Path, default_color=None) -> list[Category]:
+    """Validated categories from parsed JSON: a non-empty list of ``{id, name, isthing[, color]}``.
+
+    Parameters
+    ----------
+    raw : Any
+        The parsed ``categories`` value.
+    where : Path
+        The file it came from (named in every error).
+    default_color : callable, optional
+        ``(index, id) -> (r, g, b)`` for a category without ``color``; default a colour seeded by the id.
+
+    Raises
+    ------
+    InputError
+        Not a non-empty list, an entry without an integer ``id`` ≥ 1, a duplicate id, or a bad colour.
+    """
     if not isinstance(raw, list) or not raw:
-        raise InputError(where, "categories: must be a non-empty list")
-    out, seen = [], set()
+        raise InputError(where, "categories: must be a non-empty list of {id, name, isthing[, color]}")
+    out: list[Category] = []
+    seen: set[int] = set()
     for k, c in enumerate(raw):
         if not isinstance(c, dict) or "id" not in c:
             raise InputError(where, f"categories[{k}]: needs an 'id'")
         try:
             cid = int(c["id"])
         except (TypeError, ValueError):
-            raise InputError(where, f"categories[{k}].id: not an integer") from None
+            raise InputError(where, f"categories[{k}].id: not an integer ({c['id']!r})") from None
         if cid < 1:
             raise InputError(where, f"categories[{k}].id: must be >= 1 (0 is void)")
         if cid in seen:
             raise InputError(where, f"categories[{k}].id: duplicate id {cid}")
         seen.add(cid)
-        color = c.get("color") or _default_color(cid)
-        out.append(Category(cid, str(c.get("name", f"class_{cid}")), bool(c.get("isthing", 0)),
-                            tuple(int(x) for x in color[:3])))
+        color = c.get("color")
+        try:
+            rgb = tuple(int(x) for x in color[:3]) if color else None
+        except (TypeError, ValueError):
+            raise InputError(where, f"categories[{k}].color: expected [r, g, b]") from None
+        if rgb is None:
+            rgb = default_color(k, cid) if default_color is not None else _default_color(cid)
+        out.append(Category(cid, str(c.get("name", f"class_{cid}")), bool(c.get("isthing", 0)), rgb))
     return out
 
 
@@ -473,9 +495,9 @@ def load_scene(root: str | Path) -> Scene:
     pan_json_path = root / str(meta.get("panoptic_json", "panoptic.json"))
     pan_json = _read_json(pan_json_path) if pan_json_path.is_file() else None
     if "categories" in meta:
-        categories = _categories(meta["categories"], tpath)
+        categories = parse_categories(meta["categories"], tpath)
     elif isinstance(pan_json, dict) and "categories" in pan_json:
-        categories = _categories(pan_json["categories"], pan_json_path)
+        categories = parse_categories(pan_json["categories"], pan_json_path)
     else:
         raise InputError(tpath, "categories: missing (and panoptic.json has none)")
     cat_by_id = {c.id: c for c in categories}
