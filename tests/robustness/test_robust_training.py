@@ -154,11 +154,16 @@ def test_a_training_frame_that_is_all_void(synth_scene, tmp_path):
     assert math.isfinite(result.summary["eval"]["psnr"])
 
 
-def test_a_scene_without_any_thing_pixel_has_no_instance_head(synth_scene, tmp_path, capfd):
-    root = copy_scene(synth_scene, tmp_path / "room")
+def _copy_with_classes(synth_scene, dst):
+    """A copy of the scene, its thing category ids, and its lowest stuff id (to relabel things as)."""
+    root = copy_scene(synth_scene, dst)
     meta = yaml.safe_load((root / "transforms.json").read_text())
     things = {c["id"] for c in meta["categories"] if c["isthing"]}
-    stuff = min(c["id"] for c in meta["categories"] if not c["isthing"])
+    return root, things, min(c["id"] for c in meta["categories"] if not c["isthing"])
+
+
+def test_a_scene_without_any_thing_pixel_has_no_instance_head(synth_scene, tmp_path, capfd):
+    root, things, stuff = _copy_with_classes(synth_scene, tmp_path / "room")
 
     def no_things(doc):
         for ann in doc["annotations"]:
@@ -180,10 +185,7 @@ def test_a_scene_without_any_thing_pixel_has_no_instance_head(synth_scene, tmp_p
 
 
 def test_one_instance_per_frame(synth_scene, tmp_path):
-    root = copy_scene(synth_scene, tmp_path / "room")
-    meta = yaml.safe_load((root / "transforms.json").read_text())
-    things = {c["id"] for c in meta["categories"] if c["isthing"]}
-    stuff = min(c["id"] for c in meta["categories"] if not c["isthing"])
+    root, things, stuff = _copy_with_classes(synth_scene, tmp_path / "room")
 
     def one_thing(doc):
         for ann in doc["annotations"]:
