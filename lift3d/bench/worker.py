@@ -66,13 +66,18 @@ def _trainer(spec: dict):
     return Trainer(scene, cfg, norm, run, torch.device("cpu"), progress=False), scene, cfg, threads
 
 
+def _one_step(trainer) -> None:
+    """One training step, advancing the step counter as ``Trainer.fit`` does (the schedule follows it)."""
+    trainer.train_step()
+    trainer.step += 1
+
+
 def _timed_steps(trainer, n: int) -> list[float]:
     """Seconds of each of ``n`` training steps."""
     times = []
     for _ in range(n):
         t0 = time.perf_counter()
-        trainer.train_step()
-        trainer.step += 1
+        _one_step(trainer)
         times.append(time.perf_counter() - t0)
     return times
 
@@ -141,12 +146,7 @@ def run_profile(spec: dict) -> dict:
     trainer, scene, cfg, threads = _trainer(spec)
     warmup, steps, top = int(spec.get("warmup", 10)), int(spec.get("steps", 10)), int(spec.get("top", 12))
     step_times = _timed_steps(trainer, warmup + steps)[warmup:]
-
-    def step():
-        trainer.train_step()
-        trainer.step += 1
-
-    train = _profile_table(step, steps, top)
+    train = _profile_table(lambda: _one_step(trainer), steps, top)
     render_fn = _render_rays(trainer, scene)
     repeats = int(spec.get("repeats", 10))
     render_times = _timed_calls(render_fn, repeats)
