@@ -180,6 +180,60 @@ def test_automatic_threshold_matches_the_rendered_surface(analytic):
     assert info["mean_error_samples"] < 2.0
 
 
+
+def test_refinement_moves_vertices_onto_the_rendered_surface():
+    """A ball whose density ramps linearly from 0 at radius R0 to P at R0 - W: a ray going inwards along
+    the normal reaches opacity 0.5 where P s² / (2 W) = ln 2, deeper than a low isosurface."""
+    from lift3d.export.mesh import field_isosurface, refine_to_rendered_surface
+
+    r0, width, peak, tau = 0.5, 0.05, 100.0, 10.0
+    model = _tiny_model()
+
+    def geometry(x):
+        s = r0 - x.norm(dim=-1)
+        return peak * (s / width).clamp(0.0, 1.0), torch.zeros(len(x), model.cfg.field.geo_feat_dim), \
+            ((x + 1) / 2).clamp(0, 1)
+
+    model.field.geometry = geometry
+    surf = field_isosurface(model, tau, 64)
+    expected = r0 - np.sqrt(2 * width * np.log(2) / peak)  # 0.4737, about 0.7 voxel (2/64) inside
+    iso_radius = np.median(np.linalg.norm(surf.vertices, axis=1))
+    assert iso_radius > expected + 0.02  # σ = τ lies at 0.495 (0.497 with the grid's linear interpolation)
+    refined = refine_to_rendered_surface(model, surf)
+    radius = np.linalg.norm(refined.vertices, axis=1)
+    assert np.median(np.abs(radius - expected)) < 1e-3 and np.abs(radius - expected).max() < 4e-3
+    st = refined.stats["refine"]
+    assert st["moved"] == st["vertices"] == len(surf.vertices)
+    assert np.array_equal(refined.faces, surf.faces)
+    # Too little density for a half-opaque short ray: nothing moves.
+    model.field.geometry = lambda x: (0.05 * geometry(x)[0], *geometry(x)[1:])
+    faint = refine_to_rendered_surface(model, field_isosurface(model, 0.5, 64))
+    assert faint.stats["refine"]["moved"] == 0
+
+
+def test_refinement_leaves_crevice_vertices_alone():
+    """Two parallel slabs one voxel apart: the short ray of a vertex facing the gap starts inside the other
+    slab (σ ≥ τ at its first sample), so that vertex must not jump onto the neighbour."""
+    from lift3d.export.mesh import field_isosurface, refine_to_rendered_surface
+
+    model = _tiny_model()
+    voxel = 2.0 / 64
+
+    def geometry(x):
+        gap = (x[:, 0].abs() < 0.5 * voxel)
+        slab = (x[:, 0].abs() < 0.4) & ~gap & (x[:, 1].abs() < 0.6) & (x[:, 2].abs() < 0.6)
+        return torch.where(slab, 1000.0, 0.0), torch.zeros(len(x), model.cfg.field.geo_feat_dim), \
+            ((x + 1) / 2).clamp(0, 1)
+
+    model.field.geometry = geometry
+    surf = field_isosurface(model, 100.0, 64)
+    refined = refine_to_rendered_surface(model, surf)
+    facing_gap = (np.abs(surf.vertices[:, 0]) < voxel) & (np.abs(surf.vertices[:, 1]) < 0.5) & \
+        (np.abs(surf.vertices[:, 2]) < 0.5)
+    assert facing_gap.sum() > 100
+    moved_by = np.abs(refined.vertices - surf.vertices).max(1)
+    assert (moved_by[facing_gap] < 0.75 * voxel).all()  # stayed on its own side of the gap
+
 def test_normalized_frame_and_transform(analytic, surface_points):
     norm_pts = extract_labelled_points(analytic.loaded, analytic.scene, num_points=20000, frame="normalized",
                                        density_threshold=surface_points.thresholds["density"])

@@ -20,7 +20,7 @@ from lift3d.render.samplers import (
     spacing_fn_inv,
     uniform_edges,
 )
-from lift3d.render.volume import composite, render_depth, render_weights, render_weights_reference
+from lift3d.render.volume import composite, opacity_crossing, render_depth, render_weights, render_weights_reference
 
 
 def test_render_weights_match_reference_float64():
@@ -77,6 +77,40 @@ def test_empty_rays_have_zero_weight_and_finite_gradients():
     assert float(w.detach().abs().sum()) == 0.0
     w.sum().backward()
     assert torch.isfinite(sigma.grad).all()
+
+
+def test_opacity_crossing_matches_a_finely_subdivided_ray():
+    # Reference: split every interval into 2000 pieces of the same density and walk until opacity 0.5.
+    g = torch.Generator().manual_seed(0)
+    sigma = torch.rand(64, 12, generator=g, dtype=torch.float64) * 8.0
+    sigma[:, :3] = 0.0  # empty space first
+    deltas = torch.rand(64, 12, generator=g, dtype=torch.float64) * 0.2 + 0.01
+    dist, reached = opacity_crossing(sigma, deltas)
+    sub = 2000
+    fine_sigma = sigma.repeat_interleave(sub, dim=1)
+    fine_deltas = (deltas / sub).repeat_interleave(sub, dim=1)
+    w, _ = render_weights(fine_sigma, fine_deltas)
+    opacity = w.cumsum(-1)
+    ends = fine_deltas.cumsum(-1)
+    for r in range(len(sigma)):
+        assert bool(reached[r]) == bool(opacity[r, -1] >= 0.5)
+        if reached[r]:
+            k = int((opacity[r] < 0.5).sum())
+            assert abs(float(dist[r]) - float(ends[r, k])) <= float(fine_deltas[r, k]) + 1e-9
+
+
+def test_opacity_crossing_edge_cases():
+    deltas = torch.ones(4, 3)
+    sigma = torch.tensor([[0.0, 0.0, 0.0], [1e6, 0.0, 0.0], [float("nan"), float("inf"), 0.0],
+                          [0.0, 0.0, math.log(2.0)]])
+    dist, reached = opacity_crossing(sigma, deltas)
+    assert reached.tolist() == [False, True, True, True]
+    assert torch.isfinite(dist).all()
+    assert float(dist[0]) == 0.0 and float(dist[1]) < 1e-3  # saturated: at the start of its interval
+    assert 1.0 <= float(dist[2]) < 1.001  # NaN counts as empty, +inf as opaque
+    assert float(dist[3]) == pytest.approx(3.0, abs=1e-5)  # ln 2 over the last interval: exactly at its end
+    with pytest.raises(ValueError, match="level"):
+        opacity_crossing(sigma, deltas, level=1.0)
 
 
 def test_composite_is_weighted_sum():

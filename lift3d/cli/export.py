@@ -49,6 +49,9 @@ def add_parser(subparsers, verb: str) -> argparse.ArgumentParser:
                    help="output coordinates (default: world, the input poses' frame)")
     g.add_argument("--density-threshold", type=float, metavar="SIGMA",
                    help="isosurface density (normalised units; default: fitted to the rendered depth)")
+    g.add_argument("--no-refine-surface", dest="refine_surface", action="store_false",
+                   help="keep points and mesh vertices on the exact isosurface instead of moving them onto the "
+                        "rendered surface (default: refine)")
     g.add_argument("--min-confidence", type=float, default=0.0, metavar="P",
                    help="drop points whose class probability is below P (default: 0)")
     g.add_argument("--voxel-size", type=float, default=0.0, metavar="S",
@@ -103,8 +106,8 @@ def run(args: argparse.Namespace) -> int:
         pcd_ascii=args.pcd_ascii, progress=not args.quiet,
         command=" ".join(["lift3d", *map(shlex.quote, sys.argv[1:])]) if sys.argv[1:] else None,
         source=args.source, num_points=args.num_points, frame=args.frame, density_threshold=args.density_threshold,
-        min_confidence=args.min_confidence, voxel_size=args.voxel_size, remove_outliers=args.remove_outliers,
-        std_ratio=args.std_ratio, obb=obb, min_points=args.min_points, device=args.device,
+        refine_surface=args.refine_surface, min_confidence=args.min_confidence, voxel_size=args.voxel_size,
+        remove_outliers=args.remove_outliers, std_ratio=args.std_ratio, obb=obb, min_points=args.min_points, device=args.device,
     )
     print(format_summary(summary))
     return 0

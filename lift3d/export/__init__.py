@@ -99,8 +99,8 @@ def export_run(run: str | Path, output_dir: str | Path | None = None, *, pointcl
         An already loaded run and scene (skips loading).
     **point_options
         Passed to :func:`~lift3d.export.pointcloud.extract_labelled_points` (``source``, ``num_points``,
-        ``frame``, ``density_threshold``, ``min_confidence``, ``voxel_size``, ``remove_outliers``,
-        ``std_ratio``, ``obb``, ``min_points``, ``device``).
+        ``frame``, ``density_threshold``, ``refine_surface``, ``min_confidence``, ``voxel_size``,
+        ``remove_outliers``, ``std_ratio``, ``obb``, ``min_points``, ``device``).
 
     Returns
     -------
@@ -163,7 +163,8 @@ def export_run(run: str | Path, output_dir: str | Path | None = None, *, pointcl
         from lift3d.export.mesh import extract_labelled_mesh, match_instance_ids
 
         labelled = extract_labelled_mesh(loaded, scene, resolution=resolution,
-                                         density_threshold=point_options.get("density_threshold"), frame=frame,
+                                         density_threshold=point_options.get("density_threshold"),
+                                         refine_surface=point_options.get("refine_surface", True), frame=frame,
                                          min_points=point_options.get("min_points", 0), progress=progress)
         if pts is not None:
             match_instance_ids(labelled, pts.xyz, pts.semantic, pts.instance)

@@ -56,6 +56,13 @@ UNBOUNDED_MAX_RADIUS = 4.0
 COARSE_CELLS = 64
 #: A coarse cell is refined when its corner densities are not all below τ/F or all above F·τ.
 REFINE_FACTOR = 4.0
+#: Vertices move onto the rendered surface within this window (grid voxels in front of / behind the
+#: isosurface), sampled with this many intervals (:func:`refine_to_rendered_surface`). The window is
+#: asymmetric because the isosurface sits mostly in front of the rendered surface (measured shifts: 5–95 %
+#: between -1.0 and +0.45 voxel) and a longer reach outwards would find neighbouring surfaces.
+REFINE_OUTSIDE = 2.0
+REFINE_INSIDE = 4.0
+REFINE_SAMPLES = 16
 
 
 # ------------------------------------------------------------------------------------------ contraction
@@ -338,6 +345,105 @@ def field_isosurface(model, threshold: float, resolution: int = 256, *, max_radi
     return FieldSurface(grid_vertices, vertices, faces, tau, cells, extent, contraction, stats)
 
 
+def vertex_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """``[V, 3]`` unit area-weighted vertex normals of a consistently oriented mesh (0 for unused vertices)."""
+    tri = vertices[faces].astype(np.float64)
+    face_normal = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])  # length = 2 × area
+    n = np.zeros((len(vertices), 3))
+    for corner in range(3):
+        np.add.at(n, faces[:, corner], face_normal)
+    length = np.linalg.norm(n, axis=1, keepdims=True)
+    return np.divide(n, length, out=np.zeros_like(n), where=length > 0)
+
+
+def refine_to_rendered_surface(model, surface: FieldSurface, *, outside: float = REFINE_OUTSIDE,
+                               inside: float = REFINE_INSIDE, samples: int = REFINE_SAMPLES,
+                               chunk: int = 8192) -> FieldSurface:
+    """Move every isosurface vertex along its normal onto the surface volume rendering sees there.
+
+    The isosurface ``σ = τ`` of a trained field is rough at the scale of a grid cell: the density crosses
+    ``τ`` a little earlier or later from cell to cell, while a rendered ray integrates over that roughness.
+    So each vertex shoots a short ray along its inward normal, from ``outside`` voxels in front of the
+    isosurface to ``inside`` voxels behind it, and moves to where that ray's accumulated opacity reaches
+    0.5 (:func:`lift3d.render.volume.opacity_crossing`, the median depth, as in
+    :func:`choose_density_threshold`). On the indoor benchmark this halves the distance of exported points
+    to the true surface (median 2.4 → 1.5 cm) and lifts point mIoU by about 0.03 (docs/export.md).
+
+    A vertex stays where it is when its short ray never becomes half opaque, when the ray already starts
+    inside matter (``σ ≥ τ`` at its first sample: a crevice where a neighbouring surface is closer than
+    ``outside`` voxels), or when it has no normal.
+
+    Parameters
+    ----------
+    model : PanopticModel
+    surface : FieldSurface
+        From :func:`field_isosurface`; its faces must be consistently oriented (flying edges' are).
+    outside, inside : float
+        Search window in grid voxels in front of and behind the isosurface.
+    samples : int
+        Density samples per vertex (intervals of the short ray).
+    chunk : int
+        Vertices per batch.
+
+    Returns
+    -------
+    FieldSurface
+        Same faces, moved vertices; ``stats["refine"]`` says how many moved and how far (voxels).
+
+    Examples
+    --------
+    >>> from lift3d.export.instances import _tiny_model
+    >>> m = _tiny_model()
+    >>> s = field_isosurface(m, threshold=1e9, resolution=16)
+    >>> refine_to_rendered_surface(m, s).stats["refine"]["moved"]
+    0
+    """
+    import torch
+
+    from lift3d.render.volume import opacity_crossing
+
+    n_vertices = len(surface.grid_vertices)
+    if n_vertices == 0 or len(surface.faces) == 0:
+        return replace(surface, stats={**surface.stats, "refine": {"moved": 0, "vertices": n_vertices}})
+    g = surface.grid_vertices.astype(np.float64)
+    normals = vertex_normals(g, surface.faces)
+    # Edges of the short ray in grid units along the outward normal, from outside (+) to inside (-).
+    edges = np.linspace(outside, -inside, samples + 1) * surface.voxel
+    mids = 0.5 * (edges[1:] + edges[:-1])
+    shift = np.zeros(n_vertices)
+    moved = np.zeros(n_vertices, bool)
+    for s in range(0, n_vertices, chunk):
+        gv, nv = g[s:s + chunk], normals[s:s + chunk]
+        # Interval lengths in normalised units (contraction stretches them unevenly in unbounded scenes).
+        e_norm = _grid_to_normalized((gv[:, None] + edges[None, :, None] * nv[:, None]).reshape(-1, 3),
+                                     surface.contraction).reshape(len(gv), samples + 1, 3)
+        deltas = np.linalg.norm(np.diff(e_norm, axis=1), axis=-1)
+        x = _grid_to_normalized((gv[:, None] + mids[None, :, None] * nv[:, None]).reshape(-1, 3),
+                                surface.contraction)
+        sigma = field_density(model, x).reshape(len(gv), samples).astype(np.float64)
+        dist, reached = opacity_crossing(torch.from_numpy(sigma), torch.from_numpy(deltas))
+        # Back from normalised distance to a grid-space offset, interval by interval (exact in each).
+        dist = dist.numpy()
+        cum = np.cumsum(deltas, 1)
+        k = np.minimum((cum < dist[:, None]).sum(1), samples - 1)
+        rows = np.arange(len(gv))
+        before = cum[rows, k] - deltas[rows, k]
+        frac = np.clip((dist - before) / np.maximum(deltas[rows, k], 1e-12), 0.0, 1.0)
+        offset = edges[k] + frac * (edges[k + 1] - edges[k])
+        ok = reached.numpy() & (sigma[:, 0] < surface.threshold) & (np.abs(nv).sum(1) > 0)
+        shift[s:s + chunk] = np.where(ok, offset, 0.0)
+        moved[s:s + chunk] = ok
+    refined = (g + shift[:, None] * normals).astype(np.float32)
+    voxels = np.abs(shift[moved]) / surface.voxel
+    stats = {"moved": int(moved.sum()), "vertices": n_vertices, "outside_voxels": float(outside),
+             "inside_voxels": float(inside), "samples": int(samples),
+             "median_shift_voxels": float(np.median(voxels)) if len(voxels) else 0.0,
+             "p95_shift_voxels": float(np.quantile(voxels, 0.95)) if len(voxels) else 0.0}
+    return replace(surface, grid_vertices=refined,
+                   vertices=_grid_to_normalized(refined.astype(np.float64), surface.contraction).astype(np.float32),
+                   stats={**surface.stats, "refine": stats})
+
+
 def _compact(vertices: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Drop vertices no face uses and renumber the faces."""
     used = np.zeros(len(vertices), bool)
@@ -480,7 +586,7 @@ class LabelledMesh:
 
 
 def extract_labelled_mesh(loaded, scene, *, resolution: int = 256, density_threshold: float | None = None,
-                          frame: str = "world", min_points: int = 0, device=None,
+                          refine_surface: bool = True, frame: str = "world", min_points: int = 0, device=None,
                           progress: bool = False) -> LabelledMesh:
     """The density isosurface with labels queried at every vertex.
 
@@ -497,6 +603,8 @@ def extract_labelled_mesh(loaded, scene, *, resolution: int = 256, density_thres
         Grid cells per axis (default 256).
     density_threshold : float, optional
         Overrides :func:`choose_density_threshold`.
+    refine_surface : bool
+        Move the vertices onto the rendered surface (:func:`refine_to_rendered_surface`; default on).
     frame : {"world", "normalized"}
     min_points : int
         Instance fragments with fewer vertices are relabelled (see ``assign_instances``).
@@ -519,6 +627,8 @@ def extract_labelled_mesh(loaded, scene, *, resolution: int = 256, density_thres
         tau = float(density_threshold)
         info = {"rule": "set by the user (--density-threshold)", "value": tau}
     surface = field_isosurface(model, tau, resolution, progress=progress)
+    if refine_surface:
+        surface = refine_to_rendered_surface(model, surface)
     cams = normalized_cameras(loaded, scene)
     centers = cams.centers[train_frames(scene)]
     dirs = np.zeros((0, 3), np.float32)
@@ -537,7 +647,8 @@ def extract_labelled_mesh(loaded, scene, *, resolution: int = 256, density_thres
         faces = faces[keep[faces].all(-1)]
         remap = np.cumsum(keep) - 1
         faces = remap[faces]
-    thresholds = {"density": tau, "density_rule": info, "resolution": surface.resolution}
+    thresholds = {"density": tau, "density_rule": info, "resolution": surface.resolution,
+                  "refine": surface.stats.get("refine", "off (vertices on the exact isosurface)")}
     return LabelledMesh(
         vertices=xyz[keep].astype(np.float32), faces=faces.astype(np.int64), rgb=labels.rgb[keep],
         semantic=assignment.semantic[keep], instance=assignment.instance[keep],

@@ -135,7 +135,7 @@ class OrientedBox:
 # ------------------------------------------------------------------------------------------ main entry
 def extract_labelled_points(loaded, scene, *, source: str = "surface", num_points: int = 1_000_000,
                             frame: str = "world", density_threshold: float | None = None,
-                            min_confidence: float = 0.0, voxel_size: float = 0.0, remove_outliers: bool = False,
+                            refine_surface: bool = True, min_confidence: float = 0.0, voxel_size: float = 0.0, remove_outliers: bool = False,
                             std_ratio: float = 2.0, obb=None, min_points: int = 0, device=None,
                             progress: bool = False) -> LabelledPoints:
     """A labelled point cloud of a trained run (see the module docstring for the sources and filters).
@@ -154,6 +154,10 @@ def extract_labelled_points(loaded, scene, *, source: str = "surface", num_point
     density_threshold : float, optional
         Isosurface density (normalised units); default chosen from the field
         (:func:`lift3d.export.mesh.choose_density_threshold`).
+    refine_surface : bool
+        ``surface`` source: move the isosurface onto the rendered surface before sampling
+        (:func:`lift3d.export.mesh.refine_to_rendered_surface`; default on). Off: points lie exactly on
+        ``σ = τ``.
     min_confidence : float
         Drop points whose chosen class has a lower probability.
     voxel_size : float
@@ -194,7 +198,8 @@ def extract_labelled_points(loaded, scene, *, source: str = "surface", num_point
     timings: dict[str, float] = {}
     start = time.perf_counter()
     if source == "surface":
-        cand = _surface_points(loaded, scene, int(num_points), density_threshold, progress, timings)
+        cand = _surface_points(loaded, scene, int(num_points), density_threshold, progress, timings,
+                               refine=refine_surface)
     else:
         cand = _ray_points(loaded, scene, int(num_points), progress, timings)
     stats: dict[str, Any] = {"source": source, "drawn": int(len(cand["x"]))}
@@ -282,11 +287,11 @@ def surface_resolution(loaded) -> int:
 
 
 def _surface_points(loaded, scene, num_points: int, density_threshold, progress: bool,
-                    timings: dict[str, float]) -> dict[str, Any]:
+                    timings: dict[str, float], refine: bool = True) -> dict[str, Any]:
     """Area-uniform samples on the seen part of the isosurface, labelled by the heads."""
     from lift3d.export.instances import query_point_labels
     from lift3d.export.mesh import (CameraVisibility, choose_density_threshold, field_isosurface, normalized_cameras,
-                                    train_frames, view_directions)
+                                    refine_to_rendered_surface, train_frames, view_directions)
     from lift3d.field.encodings import uncontract
 
     model = loaded.model
@@ -305,6 +310,10 @@ def _surface_points(loaded, scene, num_points: int, density_threshold, progress:
     if len(surface.faces) == 0:
         raise InputError(loaded.run.path, f"the field has no surface at density {tau:.4g} (train longer, or pass a "
                                           "lower --density-threshold)")
+    if refine:
+        t = time.perf_counter()
+        surface = refine_to_rendered_surface(model, surface)
+        timings["refine"] = time.perf_counter() - t
     t = time.perf_counter()
     cams = normalized_cameras(loaded, scene)
     near = float(loaded.cfg.sampling.near_plane)
@@ -336,6 +345,7 @@ def _surface_points(loaded, scene, num_points: int, density_threshold, progress:
     timings["heads"] = time.perf_counter() - t
     thresholds = {
         "density": tau, "density_rule": info, "surface_resolution": surface.resolution,
+        "refine": surface.stats.get("refine", "off (points on the exact isosurface)"),
         "visibility": {"rule": "in a training camera's image, beyond its near plane, no isosurface between "
                                "camera and point", "occluder_tolerance": surface.voxel, "near": near},
     }
