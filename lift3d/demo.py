@@ -114,8 +114,9 @@ def run_demo(output_dir: str | Path = "demo_out", *, kind: str = "indoor", prese
                                                  "render_ms_per_2048_rays")},
         "pseudo_labels": {k: (metrics.get("pseudo_labels") or {}).get(k) for k in ("miou", "pq_scene", "sq_scene",
                                                                                   "rq_scene")},
-        "points3d": {k: (metrics.get("points3d") or {}).get(k) for k in ("fscore", "miou", "pq", "chamfer",
-                                                                            "instance_recall", "n_instances")},
+        "points3d": {k: (metrics.get("points3d") or {}).get(k) for k in ("fscore", "miou", "miou_strict", "pq",
+                                                                            "chamfer", "instance_recall",
+                                                                            "n_instances")},
         "train": {"steps": result.steps, "seconds": result.seconds, "peak_rss_mb": result.peak_rss_mb},
     }
     write_json_atomic(out / "summary.json", summary)
@@ -142,7 +143,8 @@ def format_summary(s: dict) -> str:
         f"  PQ^scene          {_f(m['pq_scene'])}    {_f(p['pq_scene'])}",
         f"  SQ / RQ           {_f(m['sq_scene'], 2)}/{_f(m['rq_scene'], 2)}  {_f(p['sq_scene'], 2)}/{_f(p['rq_scene'], 2)}",
         f"  PSNR              {_f(m['psnr'], 2)} dB",
-        f"  3D vs GT points   F-score {_f(d['fscore'])}, point mIoU {_f(d['miou'])}, point PQ {_f(d['pq'])}",
+        f"  3D vs GT points   F-score {_f(d['fscore'])}, point mIoU {_f(d['miou'])} (strict "
+        f"{_f(d.get('miou_strict'))}), point PQ {_f(d['pq'])}",
         f"  objects found     {_f(d['instance_recall'], 2)} of {d['n_instances']} GT objects (point IoU > 0.5)",
         f"  render            {_f(m['render_ms_per_2048_rays'], 1)} ms per 2048 rays",
         "",

@@ -354,7 +354,8 @@ def points3d_block(loaded, scene: Scene, num_points: int = 200_000, progress: bo
     Returns
     -------
     dict or None
-        ``miou pq sq rq`` (point labels, ``min_area`` 0), ``accuracy completeness chamfer`` (world units),
+        ``miou pq sq rq`` (point labels, ``min_area`` 0.005 as in 2D) and ``miou_strict pq_strict sq_strict
+        rq_strict`` (``min_area`` 0), ``accuracy completeness chamfer`` (world units),
         ``precision recall fscore`` at ``tau`` (1 % of the GT bounding-box diagonal), ``tau``, ``n_pred``,
         ``n_gt``, ``instance_recall`` (share of GT objects with ≥ 500 points found as one instance with point
         IoU > 0.5) and ``n_instances``, ``source`` (``export.surface`` or ``rendered_depth``), ``num_points``.
@@ -365,11 +366,12 @@ def points3d_block(loaded, scene: Scene, num_points: int = 200_000, progress: bo
     pts, source = _labelled_points(loaded, scene, num_points, progress)
     r = points3d(np.asarray(pts.xyz, np.float64), np.asarray(pts.semantic).astype(np.int64),
                  np.asarray(pts.instance).astype(np.int64), gt["xyz"], np.asarray(gt["semantic"]).astype(np.int64),
-                 np.asarray(gt["instance"]).astype(np.int64), things=scene.thing_ids, stuff=scene.stuff_ids)
-    keys = ("miou", "pq", "sq", "rq", "accuracy", "completeness", "chamfer", "precision", "recall", "fscore",
+                 np.asarray(gt["instance"]).astype(np.int64), things=scene.thing_ids, stuff=scene.stuff_ids,
+                 min_area=MIN_AREA)
+    keys = ("miou", "pq", "sq", "rq", "miou_strict", "pq_strict", "sq_strict", "rq_strict", "accuracy", "completeness", "chamfer", "precision", "recall", "fscore",
             "tau", "n_pred", "n_gt", "instance_recall", "n_instances")
     block = {k: r[k] for k in keys}
-    block.update(source=source, num_points=int(num_points), min_area=0.0)
+    block.update(source=source, num_points=int(num_points), min_area=MIN_AREA)
     return block
 
 
