@@ -55,3 +55,19 @@ def test_bench_quick_writes_every_report(tmp_path):
     assert proc2.returncode == 0
     again = json.loads((out / "results.json").read_text())
     assert [r["train_seconds"] for r in again["runs"]] == [r["train_seconds"] for r in runs]
+    # --reevaluate: metrics are computed again from the cached runs; training and render timing are kept.
+    for path in (out / "cache").glob("run_*.json"):
+        if not path.name.endswith(".spec.json"):
+            cached = json.loads(path.read_text())
+            cached["metrics"]["points3d"]["miou"] = -1.0  # stale: must be replaced
+            path.write_text(json.dumps(cached))
+    proc3 = subprocess.run(cmd + ["--reevaluate", "--no-ablation", "--no-scaling", "--no-profile"],
+                           capture_output=True, text=True, timeout=600)
+    assert proc3.returncode == 0, proc3.stderr[-3000:]
+    third = json.loads((out / "results.json").read_text())
+    assert [r["train_seconds"] for r in third["runs"]] == [r["train_seconds"] for r in runs]
+    assert [r["render_ms_per_2048_rays"] for r in third["runs"]] == [r["render_ms_per_2048_rays"] for r in runs]
+    for r in third["runs"]:
+        assert 0 <= r["points3d"]["miou"] <= 1 and r["points3d"]["miou_strict"] is not None
+    assert all("reevaluated" in json.loads(p.read_text()) for p in (out / "cache").glob("run_*_s0.json"))
+    assert not list((out / "cache").glob("*.eval.json"))

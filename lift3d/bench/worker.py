@@ -50,6 +50,15 @@ def run_train(spec: dict) -> dict:
     })
 
 
+def run_evaluate(spec: dict) -> dict:
+    """Evaluate an existing run folder again (``lift3d bench --reevaluate``)."""
+    from lift3d.eval.evaluate import evaluate_run, json_safe
+
+    metrics = evaluate_run(spec["run"], split="test", progress=False, num_points=int(spec.get("num_points", 200_000)),
+                           timing_repeats=int(spec.get("timing_repeats", 10)))
+    return json_safe({"run": spec["run"], "metrics": metrics})
+
+
 def _trainer(spec: dict):
     """A fresh trainer for the spec's scene and preset (CPU), and the thread count in use."""
     import torch
@@ -172,7 +181,8 @@ def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else argv
     spec = json.loads(Path(argv[0]).read_text())
     out = Path(argv[1])
-    kinds = {"train": run_train, "scaling": run_scaling, "profile": run_profile, "export": run_export}
+    kinds = {"train": run_train, "evaluate": run_evaluate, "scaling": run_scaling, "profile": run_profile,
+             "export": run_export}
     result = kinds[spec["kind"]](spec)
     result["spec"] = spec
     write_json_atomic(out, result)
