@@ -907,6 +907,12 @@ def save_turntable(points_or_path: Any, path: str | Path, *, frames: int = 36, f
     return path
 
 
+def _display_server_missing() -> bool:
+    """True on a Linux/BSD machine with neither ``DISPLAY`` nor ``WAYLAND_DISPLAY`` set (no window can open)."""
+    return sys.platform.startswith(("linux", "freebsd", "openbsd", "netbsd")) and not (
+        os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY"))
+
+
 def prefer_headless_egl() -> bool:
     """On a headless Linux machine with EGL, render off-screen through EGL without probing X first.
 
@@ -919,7 +925,7 @@ def prefer_headless_egl() -> bool:
 
     if not sys.platform.startswith("linux") or os.environ.get("VTK_DEFAULT_OPENGL_WINDOW"):
         return False
-    if os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY") or not ctypes.util.find_library("EGL"):
+    if not _display_server_missing() or not ctypes.util.find_library("EGL"):
         return False
     os.environ["VTK_DEFAULT_OPENGL_WINDOW"] = "vtkEGLRenderWindow"
     return True
@@ -931,9 +937,8 @@ def has_display() -> bool:
     ``pyvista.system_supports_plotting()`` is not enough on its own: with VTK ≥ 9.4 it can answer True on a
     headless machine (EGL / OSMesa render off-screen fine, but no window can appear).
     """
-    if sys.platform.startswith(("linux", "freebsd", "openbsd", "netbsd")):
-        if not (os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY")):
-            return False
+    if _display_server_missing():
+        return False
     try:
         import pyvista as pv
 
