@@ -11,7 +11,8 @@ the scene's own 2D pseudo-labels (the baseline lifting has to beat), with a thin
   2D   mIoU and PQ^scene / SQ / RQ at min_area 0.005 (published numbers) and 0 (suffix _strict), PSNR,
        depth errors when the scene has GT depth
   3D   when gt/points.ply exists: the run's labelled surface points against the GT points (point mIoU,
-       point PQ, accuracy, completeness, Chamfer, F-score at tau = 1 % of the GT box diagonal)
+       point PQ with the same two min_area variants, accuracy, completeness, Chamfer, F-score at
+       tau = 1 % of the GT box diagonal)
   speed  ms to render 2048 rays (rgb+depth+semantic+instance), median of 10 after 2 warm-up runs
 
 Writes <run>/metrics.json (and --json FILE) atomically; NaN / inf are written as null. Without GT panoptic

@@ -25,6 +25,11 @@ one layer of zero density (their value outside the box), so surfaces cut by the 
 flying edges (PyVista) contours the result; its triangles are consistently oriented, with
 ``(v1 - v0) × (v2 - v0)`` pointing to lower density (outwards).
 
+*Refinement.* The isosurface of a trained field is rough at the scale of a grid cell, while a rendered ray
+integrates over that roughness; :func:`refine_to_rendered_surface` moves every vertex along its normal to
+where a short ray through it reaches opacity 0.5 (the rule ``τ`` was fitted to), before points are sampled
+or the mesh is labelled. ``--no-refine-surface`` keeps the exact isosurface.
+
 *Unbounded scenes* are contoured in contracted space and mapped back with the inverse contraction; far
 background beyond :data:`UNBOUNDED_MAX_RADIUS` (normalised units, ∞-norm: 4 × the foreground box) is
 skipped: it is neither refined nor exported.
