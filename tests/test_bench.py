@@ -71,3 +71,4 @@ def test_bench_quick_writes_every_report(tmp_path):
         assert 0 <= r["points3d"]["miou"] <= 1 and r["points3d"]["miou_strict"] is not None
     assert all("reevaluated" in json.loads(p.read_text()) for p in (out / "cache").glob("run_*_s0.json"))
     assert not list((out / "cache").glob("*.eval.json"))
+    assert "`lift3d bench --reevaluate`" in (tmp_path / "docs" / "benchmarks.md").read_text()

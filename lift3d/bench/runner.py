@@ -175,6 +175,7 @@ def _record(res: dict, **tags) -> dict:
         "depth_supervision": bool(res.get("depth_supervision", False)),
         "render_ms_per_2048_rays": m.get("render_ms_per_2048_rays"),
         "run": res["run"],
+        "reevaluated": res.get("reevaluated"),
     })
     for k in ("psnr", "miou", "pq_scene", "sq_scene", "rq_scene", "miou_strict", "pq_scene_strict",
               "sq_scene_strict", "rq_scene_strict"):
@@ -365,6 +366,14 @@ def benchmarks_markdown(results: dict, pictures: dict[str, str]) -> str:
         f"run on **{m['cpu']}**, {m['cpus_available']} CPU cores, torch {m['torch']} with "
         f"{m['torch_threads']} threads{', GPU ' + m['cuda'] if m.get('cuda') else ', no GPU'}; "
         f"{results['created']}{' (--quick: tiny scenes, smoke test only)' if results.get('quick') else ''}.",
+    ]
+    again = sorted({r["reevaluated"] for r in results["runs"] + results["parameterisation"] if r.get("reevaluated")})
+    if again:
+        lines += ["", f"The metrics of the preset, hard-noise, RGB-only and bounded runs were computed again from "
+                      f"their trained checkpoints on {again[-1][:10]} (`lift3d bench --reevaluate`, after a change to "
+                      "the eval or export code); their training time, memory and render timing are from the runs "
+                      "themselves."]
+    lines += [
         "",
         "## Presets: the speed/accuracy trade",
         "",
