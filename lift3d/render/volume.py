@@ -90,11 +90,11 @@ def render_depth(weights: Tensor, t_mid: Tensor, normalize: bool = False) -> Ten
     return depth
 
 
-def opacity_crossing(sigma: Tensor, deltas: Tensor, level: float = 0.5) -> tuple[Tensor, Tensor]:
-    """Where along each ray the accumulated opacity first reaches ``level`` (the median depth at 0.5).
+def opacity_crossing_interval(sigma: Tensor, deltas: Tensor, level: float = 0.5) -> tuple[Tensor, Tensor, Tensor]:
+    """In which interval, and how far into it, each ray's accumulated opacity first reaches ``level``.
 
     The density is taken as constant over each interval (the quadrature :func:`render_weights` uses), so
-    inside the crossing interval the position is exact: ``T_k exp(-σ_k s) = 1 - level``.
+    inside the crossing interval ``k`` the position is exact: ``T_k exp(-σ_k Δt_k f) = 1 - level``.
 
     Parameters
     ----------
@@ -102,6 +102,33 @@ def opacity_crossing(sigma: Tensor, deltas: Tensor, level: float = 0.5) -> tuple
         ``[n_rays, n_samples]`` densities and interval lengths, intervals in ray order.
     level : float
         Opacity in ``(0, 1)``.
+
+    Returns
+    -------
+    interval : Tensor
+        ``[n_rays]`` int64 index ``k`` of the crossing interval (the last one where it is never reached).
+    fraction : Tensor
+        ``[n_rays]`` in ``[0, 1]``: the crossing's position inside interval ``k``.
+    reached : Tensor
+        ``[n_rays]`` bool, whether the ray reaches ``level`` at all.
+    """
+    if not 0.0 < level < 1.0:
+        raise ValueError(f"opacity_crossing: level must be in (0, 1), got {level}")
+    weights, transmittance = render_weights(sigma, deltas)
+    opacity = weights.cumsum(-1)
+    reached = opacity[:, -1] >= level
+    k = (opacity < level).sum(-1).clamp(max=sigma.shape[-1] - 1)
+    rows = torch.arange(sigma.shape[0], device=sigma.device)
+    tau_k = optical_depth(sigma[rows, k], deltas[rows, k])
+    # T_k exp(-τ_k f) = 1 - level  →  f = ln(T_k / (1 - level)) / τ_k.
+    fraction = (torch.log(transmittance[rows, k] / (1.0 - level)) / tau_k.clamp_min(1e-12)).clamp(0.0, 1.0)
+    return k, fraction, reached
+
+
+def opacity_crossing(sigma: Tensor, deltas: Tensor, level: float = 0.5) -> tuple[Tensor, Tensor]:
+    """Where along each ray the accumulated opacity first reaches ``level`` (the median depth at 0.5).
+
+    Exact for density constant over each interval; parameters as :func:`opacity_crossing_interval`.
 
     Returns
     -------
@@ -119,19 +146,10 @@ def opacity_crossing(sigma: Tensor, deltas: Tensor, level: float = 0.5) -> tuple
     >>> [round(v, 3) for v in d.tolist()], ok.tolist()
     ([1.0, 0.5, 0.0], [True, True, False])
     """
-    if not 0.0 < level < 1.0:
-        raise ValueError(f"opacity_crossing: level must be in (0, 1), got {level}")
-    weights, transmittance = render_weights(sigma, deltas)
-    opacity = weights.cumsum(-1)
-    reached = opacity[:, -1] >= level
-    k = (opacity < level).sum(-1).clamp(max=sigma.shape[-1] - 1)  # first interval where it is reached
+    k, fraction, reached = opacity_crossing_interval(sigma, deltas, level)
     rows = torch.arange(sigma.shape[0], device=sigma.device)
-    t_k = transmittance[rows, k]
-    tau_k = optical_depth(sigma, deltas)[rows, k]
-    # Inside interval k: T_k exp(-τ_k f) = 1 - level  →  f = ln(T_k / (1 - level)) / τ_k.
-    frac = (torch.log(t_k / (1.0 - level)) / tau_k.clamp_min(1e-12)).clamp(0.0, 1.0)
     start = torch.cumsum(deltas, -1) - deltas
-    distance = start[rows, k] + frac * deltas[rows, k]
+    distance = start[rows, k] + fraction * deltas[rows, k]
     return torch.where(reached, distance, torch.zeros_like(distance)), reached
 
 

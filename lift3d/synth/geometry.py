@@ -29,6 +29,7 @@ from pathlib import Path
 import numpy as np
 
 from lift3d.data.scene import Category
+from lift3d.utils.geometry import vertex_normals
 
 #: Number of plane waves per material texture.
 N_WAVES = 5
@@ -81,13 +82,7 @@ def make_mesh(vertices: np.ndarray, triangles: np.ndarray, material: int, smooth
     triangles = np.asarray(triangles, np.int64)
     face_n = _face_normals(vertices, triangles)
     if smooth:
-        a, b, c = (vertices[triangles[:, k]] for k in range(3))
-        area_n = np.cross(b - a, c - a)  # length = 2 * area: larger faces weigh more
-        vert_n = np.zeros_like(vertices)
-        for k in range(3):
-            np.add.at(vert_n, triangles[:, k], area_n)
-        vert_n /= np.maximum(np.linalg.norm(vert_n, axis=1, keepdims=True), 1e-12)
-        corner = vert_n[triangles]
+        corner = vertex_normals(vertices, triangles)[triangles]
     else:
         corner = np.repeat(face_n[:, None, :], 3, axis=1)
     return Mesh(vertices, triangles, corner, np.full(len(triangles), material, np.int64))
