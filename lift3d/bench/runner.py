@@ -141,13 +141,14 @@ def _reevaluate(path: Path, train_spec: dict) -> dict:
     history, same machine load) and the eval and export code do not change it."""
     cached = json.loads(path.read_text())
     spec = {"kind": "evaluate", "run": cached["run"], "num_points": train_spec["num_points"], "timing_repeats": 0}
-    fresh = _worker(spec, path.with_name(path.stem + ".eval.json"))
+    fresh_path = path.with_name(path.stem + ".eval.json")
+    fresh = _worker(spec, fresh_path)
     for key in ("render_ms_per_2048_rays", "render_timing"):
         fresh["metrics"][key] = cached["metrics"].get(key)
     cached["metrics"] = fresh["metrics"]
     cached["reevaluated"] = _dt.datetime.now().isoformat(timespec="seconds")
     write_json_atomic(path, cached)
-    path.with_name(path.stem + ".eval.json").unlink()
+    fresh_path.unlink()
     return cached
 
 
@@ -439,8 +440,9 @@ def benchmarks_markdown(results: dict, pictures: dict[str, str]) -> str:
         lines += ["", "Against the paper: " + ("; ".join(against) + " move at least one metric the other way "
                   "on our scene." if against else "every component moves mIoU, PQ^scene and PSNR the paper's way.")]
         if budget is not None and budget < 600:
-            lines += ["", f"With {_f(budget, 0)} s per variant the grid variants run fewer steps than the `fast` preset "
-                      "(1 500) and none is near convergence (compare the preset table; L_seg only starts at 30 % of the schedule), so "
+            lines += ["", f"With {_f(budget, 0)} s per variant the grid variants run fewer steps than the `fast` "
+                      "preset (1 500) and none is near convergence (compare the preset table; L_seg only starts at "
+                      "30 % of the schedule), so "
                       "the +L_seg / +L_feat rows say little about those losses at this budget; rerun with "
                       "`--ablation-budget 600` or more before drawing conclusions about them. The gap between Base "
                       "(a plain MLP: under one step per second on a CPU) and +S is the robust finding."]
@@ -520,9 +522,9 @@ def export_markdown(ex: dict) -> list[str]:
         "",
         f"`lift3d export --pointcloud` of the indoor `{ex.get('preset', '–')}` run above, in a fresh process "
         f"({ex['threads']} thread{'s' if ex['threads'] != 1 else ''}): extraction (isosurface, its refinement "
-        "onto the rendered surface, visibility, labels from the heads, instances) plus writing `points.ply`. Loading the checkpoint and importing "
-        "Open3D/PyVista are not included. Targets for 1M points: 5 s (PERFORMANCE.md), and at most 30 s and "
-        "3 GiB peak memory.",
+        "onto the rendered surface, visibility, labels from the heads, instances) plus writing `points.ply`. "
+        "Loading the checkpoint and importing Open3D/PyVista are not included. Targets for 1M points: 5 s "
+        "(PERFORMANCE.md), and at most 30 s and 3 GiB peak memory.",
         "",
         "| points | seconds | extract s | write s | peak MB | load s |",
         "|---|---|---|---|---|---|",

@@ -107,7 +107,8 @@ def run(args: argparse.Namespace) -> int:
         command=" ".join(["lift3d", *map(shlex.quote, sys.argv[1:])]) if sys.argv[1:] else None,
         source=args.source, num_points=args.num_points, frame=args.frame, density_threshold=args.density_threshold,
         refine_surface=args.refine_surface, min_confidence=args.min_confidence, voxel_size=args.voxel_size,
-        remove_outliers=args.remove_outliers, std_ratio=args.std_ratio, obb=obb, min_points=args.min_points, device=args.device,
+        remove_outliers=args.remove_outliers, std_ratio=args.std_ratio, obb=obb, min_points=args.min_points,
+        device=args.device,
     )
     print(format_summary(summary))
     return 0

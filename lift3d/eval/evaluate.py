@@ -368,10 +368,11 @@ def points3d_block(loaded, scene: Scene, num_points: int = 200_000, progress: bo
                  np.asarray(pts.instance).astype(np.int64), gt["xyz"], np.asarray(gt["semantic"]).astype(np.int64),
                  np.asarray(gt["instance"]).astype(np.int64), things=scene.thing_ids, stuff=scene.stuff_ids,
                  min_area=MIN_AREA)
-    keys = ("miou", "pq", "sq", "rq", "miou_strict", "pq_strict", "sq_strict", "rq_strict", "accuracy", "completeness", "chamfer", "precision", "recall", "fscore",
-            "tau", "n_pred", "n_gt", "instance_recall", "n_instances")
+    keys = ("miou", "pq", "sq", "rq", "miou_strict", "pq_strict", "sq_strict", "rq_strict", "min_area", "accuracy",
+            "completeness", "chamfer", "precision", "recall", "fscore", "tau", "n_pred", "n_gt", "instance_recall",
+            "n_instances")
     block = {k: r[k] for k in keys}
-    block.update(source=source, num_points=int(num_points), min_area=MIN_AREA)
+    block.update(source=source, num_points=int(num_points))
     return block
 
 

@@ -106,7 +106,8 @@ def format_eval_table(m: dict) -> str:
         lines.append(f"3D ({p.get('source')}, {p.get('n_pred')} points vs {p.get('n_gt')} GT, "
                      f"tau {fmt(p.get('tau'))}): "
                      f"point mIoU {fmt(p.get('miou'))} (strict {fmt(p.get('miou_strict'))}), PQ {fmt(p.get('pq'))} "
-                     f"(strict {fmt(p.get('pq_strict'))}; SQ {fmt(p.get('sq'))}, RQ {fmt(p.get('rq'))}) | accuracy {fmt(p.get('accuracy'))}, completeness "
+                     f"(strict {fmt(p.get('pq_strict'))}; SQ {fmt(p.get('sq'))}, RQ {fmt(p.get('rq'))}) | "
+                     f"accuracy {fmt(p.get('accuracy'))}, completeness "
                      f"{fmt(p.get('completeness'))}, Chamfer {fmt(p.get('chamfer'))}, F-score {fmt(p.get('fscore'))} "
                      f"(P {fmt(p.get('precision'))}, R {fmt(p.get('recall'))}) | objects found "
                      f"{fmt(p.get('instance_recall'))} of {p.get('n_instances')}")

@@ -135,9 +135,9 @@ class OrientedBox:
 # ------------------------------------------------------------------------------------------ main entry
 def extract_labelled_points(loaded, scene, *, source: str = "surface", num_points: int = 1_000_000,
                             frame: str = "world", density_threshold: float | None = None,
-                            refine_surface: bool = True, min_confidence: float = 0.0, voxel_size: float = 0.0, remove_outliers: bool = False,
-                            std_ratio: float = 2.0, obb=None, min_points: int = 0, device=None,
-                            progress: bool = False) -> LabelledPoints:
+                            refine_surface: bool = True, min_confidence: float = 0.0, voxel_size: float = 0.0,
+                            remove_outliers: bool = False, std_ratio: float = 2.0, obb=None, min_points: int = 0,
+                            device=None, progress: bool = False) -> LabelledPoints:
     """A labelled point cloud of a trained run (see the module docstring for the sources and filters).
 
     Parameters
