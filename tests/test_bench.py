@@ -72,3 +72,19 @@ def test_bench_quick_writes_every_report(tmp_path):
     assert all("reevaluated" in json.loads(p.read_text()) for p in (out / "cache").glob("run_*_s0.json"))
     assert not list((out / "cache").glob("*.eval.json"))
     assert "`lift3d bench --reevaluate`" in (tmp_path / "docs" / "benchmarks.md").read_text()
+
+
+def test_reevaluate_names_a_cached_run_whose_folder_is_gone(tmp_path, capfd, monkeypatch):
+    from lift3d.cli.main import main
+
+    monkeypatch.setenv("LIFT3D_NO_PROGRESS", "1")
+    out = tmp_path / "bench"
+    (out / "cache").mkdir(parents=True)
+    cached = out / "cache" / "run_indoor_fast_s0.json"
+    cached.write_text(json.dumps({"run": str(tmp_path / "gone"), "metrics": {}}))
+    rc = main(["bench", "--quick", "--scenes", "indoor", "--presets", "fast", "--no-hard", "--no-rgb-only",
+               "--no-ablation", "--no-scaling", "--no-export", "--no-profile", "--reevaluate", "--out", str(out),
+               "--docs-dir", str(tmp_path / "docs")])
+    err = capfd.readouterr().err.strip().splitlines()
+    assert rc == 2 and len(err) == 1 and "run_indoor_fast_s0.json" in err[0] and "is gone" in err[0], err
+    assert json.loads(cached.read_text())["run"] == str(tmp_path / "gone")  # the cache is left as it was

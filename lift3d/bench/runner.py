@@ -140,6 +140,9 @@ def _reevaluate(path: Path, train_spec: dict) -> dict:
     The render timing is not measured again: it belongs with the training-time measurement (same process
     history, same machine load) and the eval and export code do not change it."""
     cached = json.loads(path.read_text())
+    if not (Path(cached["run"]) / "config.yml").is_file():
+        raise InputError(path, f"its run folder {cached['run']} is gone; delete this cache file to train the run "
+                               "again, or run without --reevaluate")
     spec = {"kind": "evaluate", "run": cached["run"], "num_points": train_spec["num_points"], "timing_repeats": 0}
     fresh_path = path.with_name(path.stem + ".eval.json")
     fresh = _worker(spec, fresh_path)
