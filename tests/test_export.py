@@ -25,7 +25,8 @@ from lift3d.data.ply import read_labelled_ply
 from lift3d.data.scene import Category, SceneWriter, Segment, load_scene
 from lift3d.errors import InputError
 from lift3d.export import check_writable, export_run
-from lift3d.export.formats import read_pcd, read_semantickitti_label, write_pcd
+from lift3d.export.writers.pcd import read_pcd, write_pcd
+from lift3d.export.writers.semantickitti import read_semantickitti_label
 from lift3d.export.instances import _tiny_model, assign_instances, voxel_downsample_majority
 from lift3d.export.mesh import choose_density_threshold, extract_labelled_mesh
 from lift3d.export.pointcloud import OrientedBox, extract_labelled_points

@@ -5,24 +5,32 @@ from __future__ import annotations
 import argparse
 
 DESCRIPTION = """\
-Export a trained run's labelled geometry (DESIGN.md section 3) into --output-dir, every file atomically:
-  points.ply       float32 x y z, uchar rgb, int32 semantic/instance (0 = stuff), float32 confidence
-  points.pcd       --format pcd: PCL fields label (U4 = semantic), instance (U4), rgb, confidence
-  points.label     --format label: SemanticKITTI uint32 instance << 16 | semantic (+ points.bin scan)
-  mesh.ply         --mesh: density isosurface with the same per-vertex attributes
+Export a trained run's labelled geometry (docs/export.md) into --output-dir, every file atomically:
+  mesh.ply         --mesh: density isosurface with per-vertex rgb, semantic, instance, confidence
   instances/       --mesh --split-instances: <id>_<class>.ply per instance
   instances.json   per instance: class, point count, centroid, axis-aligned and oriented box, confidence
+  scene_graph.json objects, the stuff they stand on, relations on / next_to / inside the room
   classes.json     id, name, isthing, color;   metadata.json: frame, transform, units, thresholds, run
+and per --format (default: ply):
+{formats}
 
 Point sources: 'surface' (default) samples the field's density isosurface where a training camera sees it
 and runs the label heads at every point; 'rays' back-projects the rendered depth of training rays with
 opacity > 0.5 (nerfstudio's way, slower). Coordinates are in the input poses' world frame unless
---frame normalized. See docs/export.md.
+--frame normalized. See docs/export.md (how to load each format in ROS 2, OctoMap, Nav2, CloudCompare, PCL).
 
 examples:
   lift3d export --run outputs/room0/fast/2026-11-22_101500 --pointcloud --output-dir export
   lift3d export --run RUN --pointcloud --mesh --format ply pcd label --min-points 200 --output-dir export
+  lift3d export --run RUN --pointcloud --format ros2bag octomap nav2 --map-resolution 0.05 --output-dir map
   lift3d export --run RUN --pointcloud --voxel-size 0.05 --obb-center 0 0 1 --obb-scale 4 4 2 --output-dir crop"""
+
+
+def _format_lines() -> str:
+    from lift3d.export.writers import WRITERS
+
+    return "\n".join(f"  {name:<16} {cls.help}" + (f" [extra: {cls.extra}]" if cls.extra else "")
+                     for name, cls in WRITERS.items())
 
 
 def add_parser(subparsers, verb: str) -> argparse.ArgumentParser:
@@ -30,16 +38,33 @@ def add_parser(subparsers, verb: str) -> argparse.ArgumentParser:
     p = subparsers.add_parser(
         verb, help="labelled point cloud / mesh / instances of a trained run",
         usage="lift3d export --run RUN (--pointcloud | --mesh) [--output-dir DIR] [options]",
-        description=DESCRIPTION, formatter_class=argparse.RawDescriptionHelpFormatter,
+        description=DESCRIPTION.format(formats=_format_lines()), formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     p.add_argument("--run", required=True, metavar="RUN", help="run folder (from lift3d train)")
     p.add_argument("--pointcloud", action="store_true", help="export points.ply (and --format files)")
     p.add_argument("--mesh", action="store_true", help="export mesh.ply (density isosurface)")
     p.add_argument("--output-dir", metavar="DIR", help="destination folder (default: RUN/export)")
     p.add_argument("--data", metavar="DIR", help="the scene folder, if it moved since training")
-    p.add_argument("--format", nargs="+", default=["ply"], choices=("ply", "pcd", "label"), metavar="FMT",
-                   help="point-cloud files: ply pcd label (default: ply)")
-    p.add_argument("--pcd-ascii", action="store_true", help="write points.pcd as DATA ascii (default: binary)")
+    from lift3d.export.writers import WRITERS
+
+    p.add_argument("--format", nargs="+", default=["ply"], choices=tuple(WRITERS), metavar="FMT",
+                   help=f"files to write: {' '.join(WRITERS)} (default: ply; see above)")
+    f = p.add_argument_group("formats")
+    f.add_argument("--pcd-ascii", action="store_true", help="pcd: write points.pcd as DATA ascii (default: binary)")
+    f.add_argument("--frame-id", default="map", metavar="FRAME",
+                   help="ros2bag (and nav2's map.yaml comment): header.frame_id (default: map)")
+    f.add_argument("--map-resolution", type=float, default=0.0, metavar="S",
+                   help="octomap voxel / nav2 cell side in output units (default: --voxel-size when given, else "
+                        "about two field grid cells; recorded in metadata.json)")
+    f.add_argument("--up", default="auto", metavar="AXIS",
+                   help="the scene's up axis for nav2 and scene_graph.json: auto (from the training cameras), x, "
+                        "y, z, -x, -y or -z (default: auto)")
+    f.add_argument("--floor-classes", default="", metavar="LIST",
+                   help="nav2 / scene graph: comma-separated walkable class names or ids (default: names with "
+                        "floor, rug, road, sidewalk, grass, ground, ... in them)")
+    f.add_argument("--height-band", type=float, nargs=2, metavar=("LOW", "HIGH"),
+                   help="nav2: obstacles are non-floor points this high above the floor, output units (default: "
+                        "0.1 1.8 world units)")
     g = p.add_argument_group("points")
     g.add_argument("--source", default="surface", choices=("surface", "rays"),
                    help="surface: sample the seen isosurface (default); rays: back-project rendered depth")
@@ -97,13 +122,22 @@ def run(args: argparse.Namespace) -> int:
         from lift3d.export.pointcloud import OrientedBox
 
         obb = OrientedBox.from_params(args.obb_center or (0, 0, 0), args.obb_rotation or (0, 0, 0), args.obb_scale)
+    if args.map_resolution < 0:
+        raise InputError("--map-resolution", f"must be > 0, got {args.map_resolution}")
+    if args.height_band is not None and not args.height_band[1] > args.height_band[0]:
+        raise InputError("--height-band", f"needs LOW < HIGH, got {args.height_band[0]} {args.height_band[1]}")
+    from lift3d.export.writers import ExportOptions
     from lift3d.utils.device import set_threads
 
+    options = ExportOptions(pcd_ascii=args.pcd_ascii, frame_id=args.frame_id, map_resolution=args.map_resolution,
+                            up=args.up, floor_classes=tuple(t.strip() for t in args.floor_classes.split(",")
+                                                            if t.strip()),
+                            height_band=tuple(args.height_band) if args.height_band else None)
     set_threads()
     summary = export_run(
         args.run, args.output_dir, pointcloud=args.pointcloud, mesh=args.mesh, formats=tuple(args.format),
         data=args.data, split_instances=args.split_instances, resolution=args.resolution,
-        pcd_ascii=args.pcd_ascii, progress=not args.quiet,
+        options=options, progress=not args.quiet,
         command=" ".join(["lift3d", *map(shlex.quote, sys.argv[1:])]) if sys.argv[1:] else None,
         source=args.source, num_points=args.num_points, frame=args.frame, density_threshold=args.density_threshold,
         refine_surface=args.refine_surface, min_confidence=args.min_confidence, voxel_size=args.voxel_size,

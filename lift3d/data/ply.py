@@ -20,6 +20,11 @@ from plyfile import PlyData, PlyElement
 from lift3d.errors import InputError
 from lift3d.utils.atomic import write_bytes_atomic
 
+#: The CloudCompare flavour's renames: CloudCompare (2.11+) keeps a PLY vertex property as a scalar field only
+#: when its name starts with ``scalar_`` (and saves scalar fields back under such names).
+CLOUDCOMPARE_NAMES = {"semantic": "scalar_semantic", "instance": "scalar_instance",
+                      "confidence": "scalar_confidence"}
+
 # Vertex property name → numpy dtype, in the order they are written.
 VERTEX_FIELDS = {
     "x": "f4", "y": "f4", "z": "f4",
@@ -40,6 +45,7 @@ def write_labelled_ply(
     confidence: np.ndarray | None = None,
     faces: np.ndarray | None = None,
     comments: list[str] | None = None,
+    names: dict[str, str] | None = None,
 ) -> None:
     """Write a (labelled) point cloud or triangle mesh as binary PLY, atomically.
 
@@ -61,6 +67,9 @@ def write_labelled_ply(
         ``[M, 3]`` triangle vertex indices; written as ``vertex_indices`` lists (a mesh).
     comments : list of str, optional
         Header comments (e.g. the lift3d version and frame).
+    names : dict, optional
+        Property renames, e.g. :data:`CLOUDCOMPARE_NAMES` (``semantic`` → ``scalar_semantic``: CloudCompare
+        loads only vertex properties named ``scalar_*`` as scalar fields).
 
     Examples
     --------
@@ -84,9 +93,10 @@ def write_labelled_ply(
     for name, arr in (("semantic", semantic), ("instance", instance), ("confidence", confidence)):
         if arr is not None:
             cols[name] = np.asarray(arr).reshape(n)
-    vertex = np.empty(n, dtype=[(k, VERTEX_FIELDS[k]) for k in VERTEX_FIELDS if k in cols])
+    names = names or {}
+    vertex = np.empty(n, dtype=[(names.get(k, k), VERTEX_FIELDS[k]) for k in VERTEX_FIELDS if k in cols])
     for k, v in cols.items():
-        vertex[k] = v
+        vertex[names.get(k, k)] = v
     elements = [PlyElement.describe(vertex, "vertex")]
     if faces is not None:
         faces = np.asarray(faces, dtype=np.int32)
@@ -100,6 +110,9 @@ def write_labelled_ply(
 
 def read_labelled_ply(path: str | Path) -> dict[str, np.ndarray]:
     """Read a PLY written by :func:`write_labelled_ply` (or any PLY with x, y, z).
+
+    The labels are also found under their CloudCompare names (``scalar_semantic`` ...), so a file of the
+    ``ply-cloudcompare`` flavour, or one CloudCompare saved, reads the same.
 
     Returns
     -------
@@ -128,8 +141,12 @@ def read_labelled_ply(path: str | Path) -> dict[str, np.ndarray]:
     if {"nx", "ny", "nz"} <= set(names):
         out["normals"] = np.stack([v["nx"], v["ny"], v["nz"]], -1).astype(np.float32)
     for name, dt in (("semantic", np.int32), ("instance", np.int32), ("confidence", np.float32)):
-        if name in names:
-            out[name] = np.asarray(v[name]).astype(dt)
+        for key in (name, CLOUDCOMPARE_NAMES[name]):
+            if key in names:
+                values = np.asarray(v[key])
+                # CloudCompare saves scalar fields as float32: ids round to their integer value.
+                out[name] = (np.rint(values) if dt == np.int32 and values.dtype.kind == "f" else values).astype(dt)
+                break
     if "face" in ply:
         f = ply["face"].data
         key = "vertex_indices" if "vertex_indices" in f.dtype.names else f.dtype.names[0]

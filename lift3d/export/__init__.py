@@ -6,7 +6,11 @@ Modules:
 - :mod:`lift3d.export.mesh` — density threshold, chunked density grid, isosurface, camera visibility,
   :func:`~lift3d.export.mesh.extract_labelled_mesh`;
 - :mod:`lift3d.export.instances` — label heads at points, stable instance ids, per-instance records;
-- :mod:`lift3d.export.formats` — PCD, SemanticKITTI, ``classes.json`` / ``instances.json`` / ``metadata.json``;
+- :mod:`lift3d.export.writers` — the ``--format`` registry: one writer class per file format (PLY and its
+  CloudCompare flavour, PCD, SemanticKITTI, ROS 2 bag, OctoMap, Nav2 map);
+- :mod:`lift3d.export.json_files` — ``classes.json`` / ``instances.json`` / ``metadata.json``;
+- :mod:`lift3d.export.scene_graph` — ``scene_graph.json`` (objects, the stuff they stand on, relations);
+- :mod:`lift3d.export.ground` — the scene's up axis and its floor-like classes;
 - :mod:`lift3d.export.api` — loading exports downstream (``lift3d.load_labelled_points``, ``lift3d.instances``).
 
 :func:`export_run` is what ``lift3d export`` runs. Importing this package is cheap: heavy modules (torch,
@@ -30,10 +34,7 @@ import time
 from pathlib import Path
 from typing import Any
 
-__all__ = ["export_run", "extract_labelled_points", "LabelledPoints", "benchmark_export", "FORMATS"]
-
-#: Point-cloud file formats ``--format`` accepts.
-FORMATS = ("ply", "pcd", "label")
+__all__ = ["export_run", "extract_labelled_points", "LabelledPoints", "benchmark_export", "ExportOptions"]
 
 
 def __getattr__(name: str):
@@ -41,6 +42,10 @@ def __getattr__(name: str):
         from lift3d.export import pointcloud
 
         return getattr(pointcloud, name)
+    if name == "ExportOptions":
+        from lift3d.export.writers import ExportOptions
+
+        return ExportOptions
     raise AttributeError(f"module 'lift3d.export' has no attribute {name!r}")
 
 
@@ -69,7 +74,7 @@ def check_writable(output_dir: str | Path) -> Path:
 
 def export_run(run: str | Path, output_dir: str | Path | None = None, *, pointcloud: bool = True, mesh: bool = False,
                formats: tuple[str, ...] | list[str] = ("ply",), data: str | Path | None = None,
-               split_instances: bool = False, resolution: int = 256, pcd_ascii: bool = False,
+               split_instances: bool = False, resolution: int = 256, options=None,
                command: str | None = None, progress: bool = False, loaded=None, scene=None,
                **point_options: Any) -> dict[str, Any]:
     """Export a trained run's labelled geometry into ``output_dir`` (every file written atomically).
@@ -83,16 +88,17 @@ def export_run(run: str | Path, output_dir: str | Path | None = None, *, pointcl
     pointcloud, mesh : bool
         What to export.
     formats : sequence of str
-        Point-cloud files: ``ply`` (``points.ply``), ``pcd`` (``points.pcd``), ``label``
-        (``points.label`` + ``points.bin``).
+        Names of :data:`lift3d.export.writers.WRITERS`: ``ply`` (``points.ply``), ``ply-cloudcompare``,
+        ``pcd``, ``label`` (SemanticKITTI), ``ros2bag``, ``octomap``, ``nav2``. Optional libraries are checked
+        before any work starts.
     data : str or Path, optional
         The scene folder, when it moved since training.
     split_instances : bool
         With ``mesh``: also write ``instances/<id>_<class>.ply``, one sub-mesh per instance.
     resolution : int
         Mesh grid cells per axis.
-    pcd_ascii : bool
-        Write ``points.pcd`` as ``DATA ascii`` instead of binary.
+    options : lift3d.export.writers.ExportOptions, optional
+        Settings of the format writers (ROS frame id, map resolution, up axis, floor classes, ...).
     command : str, optional
         Recorded in ``metadata.json`` (default: this process's command line).
     loaded, scene : optional
@@ -112,12 +118,14 @@ def export_run(run: str | Path, output_dir: str | Path | None = None, *, pointcl
     from lift3d import __version__
     from lift3d.data.ply import write_labelled_ply
     from lift3d.errors import InputError
-    from lift3d.export import formats as fmt
+    from lift3d.export import json_files
+    from lift3d.export.ground import floor_class_ids, resolve_up
     from lift3d.export.instances import instance_records
+    from lift3d.export.scene_graph import build_scene_graph, write_scene_graph_json
+    from lift3d.export.writers import ExportContext, ExportOptions, check_formats
 
-    unknown = [f for f in formats if f not in FORMATS]
-    if unknown:
-        raise InputError("--format", f"unknown format(s) {unknown} (choose from {' '.join(FORMATS)})")
+    options = options if options is not None else ExportOptions()
+    writers = check_formats(formats)  # unknown names and missing extras fail before any work
     if not pointcloud and not mesh:
         raise InputError("lift3d export", "nothing to export: give --pointcloud and/or --mesh")
     out = check_writable(output_dir if output_dir is not None else Path(run) / "export")
@@ -131,34 +139,22 @@ def export_run(run: str | Path, output_dir: str | Path | None = None, *, pointcl
     frame = point_options.get("frame", "world")
     units = "normalized scene units (world units x scale)" if frame == "normalized" else \
         "world units of transforms.json (metres for lift3d synth scenes)"
-    classes = fmt.class_table(scene.categories, loaded.labels.semantic_ids)
+    classes = json_files.class_table(scene.categories, loaded.labels.semantic_ids)
     names = {c["id"]: c["name"] for c in classes}
+    # Options that depend on the scene are checked before the (long) extraction.
+    up, up_reason = resolve_up(options.up, scene.cameras.c2w)
+    floor_class_ids(classes, options.floor_classes)
     written: list[str] = []
     summary: dict[str, Any] = {"output_dir": str(out), "files": written}
     thresholds: dict[str, Any] = {}
-    pts = None
+    comments = [f"lift3d {__version__} export", f"frame {frame}", f"source run {loaded.run.path}"]
+    pts = labelled = None
     if pointcloud:
         from lift3d.export.pointcloud import extract_labelled_points
 
         pts = extract_labelled_points(loaded, scene, progress=progress, **point_options)
         thresholds["points"] = pts.thresholds
-        comments = [f"lift3d {__version__} export", f"frame {pts.frame}", f"source run {loaded.run.path}"]
-        if "ply" in formats:
-            write_labelled_ply(out / "points.ply", pts.xyz, rgb=pts.rgb, semantic=pts.semantic, instance=pts.instance,
-                               confidence=pts.confidence, comments=comments)
-            written.append("points.ply")
-        if "pcd" in formats:
-            fmt.write_pcd(out / "points.pcd", pts.xyz, rgb=pts.rgb, semantic=pts.semantic, instance=pts.instance,
-                          confidence=pts.confidence, binary=not pcd_ascii)
-            written.append("points.pcd")
-        if "label" in formats:
-            fmt.write_semantickitti_label(out / "points.label", pts.semantic, pts.instance)
-            fmt.write_semantickitti_scan(out / "points.bin", pts.xyz, pts.confidence)
-            written += ["points.label", "points.bin"]
-        records = instance_records(pts.xyz, pts.semantic, pts.instance, pts.confidence, names)
-        fmt.write_instances_json(out / "instances.json", records, frame=pts.frame, units=units, source="points")
-        written.append("instances.json")
-        summary.update(points=len(pts), instances=len(records), point_stats=pts.stats)
+        summary.update(points=len(pts), point_stats=pts.stats)
     if mesh:
         from lift3d.export.mesh import extract_labelled_mesh, match_instance_ids
 
@@ -170,29 +166,48 @@ def export_run(run: str | Path, output_dir: str | Path | None = None, *, pointcl
             match_instance_ids(labelled, pts.xyz, pts.semantic, pts.instance)
         write_labelled_ply(out / "mesh.ply", labelled.vertices, rgb=labelled.rgb, semantic=labelled.semantic,
                            instance=labelled.instance, confidence=labelled.confidence, faces=labelled.faces,
-                           comments=[f"lift3d {__version__} export", f"frame {labelled.frame}"])
+                           comments=comments)
         written.append("mesh.ply")
         thresholds["mesh"] = labelled.thresholds
         summary.update(mesh_vertices=int(len(labelled.vertices)), mesh_faces=int(len(labelled.faces)))
-        if pts is None:
-            records = instance_records(labelled.vertices, labelled.semantic, labelled.instance, labelled.confidence,
-                                       names)
-            fmt.write_instances_json(out / "instances.json", records, frame=labelled.frame, units=units,
-                                     source="mesh vertices")
-            written.append("instances.json")
-            summary["instances"] = len(records)
         if split_instances:
             written += _write_instance_meshes(out / "instances", labelled, names)
-    fmt.write_classes_json(out / "classes.json", classes)
+    # Instances (and the scene graph) come from the points, or from the mesh vertices with --mesh alone.
+    if pts is not None:
+        geo = (pts.xyz, pts.semantic, pts.instance, pts.confidence)
+        source, link = "points", pts.thresholds.get("instance_link_radius")
+    else:
+        geo = (labelled.vertices, labelled.semantic, labelled.instance, labelled.confidence)
+        source, link = "mesh vertices", labelled.thresholds.get("instance_link_radius")
+    transform = np.asarray(pts.transform if pts is not None else labelled.transform)
+    # The export's own length scale (about two field grid cells), for map cells when the user gave none.
+    default_resolution = float(point_options.get("voxel_size") or link or _world_cell(transform, frame))
+    records = instance_records(*geo, names)
+    summary["instances"] = len(records)
+    ctx = ExportContext(out=out, points=pts, mesh=labelled, classes=classes, records=records, frame=frame,
+                        units=units, transform=transform, up=up, default_resolution=default_resolution,
+                        options=options, comments=comments)
+    graph = build_scene_graph(*geo, records, classes, up=up, contact=ctx.resolution,
+                              floor_classes=options.floor_classes, world_length=ctx.world_length)
+    for writer in writers:
+        written += writer.write(ctx)
+    json_files.write_instances_json(out / "instances.json", records, frame=frame, units=units, source=source)
+    write_scene_graph_json(out / "scene_graph.json", graph, frame=frame, units=units)
+    written += ["instances.json", "scene_graph.json"]
+    json_files.write_classes_json(out / "classes.json", classes)
     written.append("classes.json")
-    transform = pts.transform if pts is not None else labelled.transform
     metadata = {
         "lift3d_version": __version__,
         "frame": frame,
-        "transform": np.asarray(transform).tolist(),
+        "transform": transform.tolist(),
         "transform_note": "x_world = transform @ [x_normalized, 1] (a similarity: uniform scale + translation)",
         "units": units,
+        "up": {"axis": up.tolist(), "reason": up_reason},
         "thresholds": thresholds,
+        "formats": {"names": [w.name for w in writers], "map_resolution": ctx.resolution,
+                    "map_resolution_reason": "--map-resolution" if options.map_resolution else
+                    "--voxel-size" if point_options.get("voxel_size") else
+                    "the instance link radius (about two field grid cells)", **ctx.notes},
         "source_run": {"path": str(Path(loaded.run.path).resolve()), "step": int(loaded.step),
                        "scene": str(scene.root.resolve())},
         "command": command if command is not None else " ".join([Path(sys.argv[0]).name, *sys.argv[1:]]),
@@ -202,10 +217,18 @@ def export_run(run: str | Path, output_dir: str | Path | None = None, *, pointcl
                     for k, v in point_options.items()},
         "counts": {k: summary[k] for k in ("points", "instances", "mesh_vertices", "mesh_faces") if k in summary},
     }
-    fmt.write_metadata_json(out / "metadata.json", metadata)
+    json_files.write_metadata_json(out / "metadata.json", metadata)
     written.append("metadata.json")
     summary["seconds"] = time.perf_counter() - started
     return summary
+
+
+def _world_cell(transform, frame: str) -> float:
+    """1/256 of the normalised foreground box's side ([-1, 1]) in output units (a last-resort scale)."""
+    import numpy as np
+
+    scale = 1.0 if frame == "normalized" else float(np.cbrt(abs(np.linalg.det(np.asarray(transform)[:3, :3]))))
+    return 2.0 / 256 * scale
 
 
 def _write_instance_meshes(folder: Path, labelled, names: dict[int, str]) -> list[str]:

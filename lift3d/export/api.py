@@ -194,7 +194,7 @@ def load_labelled_points(path: str | Path) -> LabelledPointCloud:
     if not p.is_file():
         raise InputError(p, "file not found")
     if p.suffix.lower() == ".pcd":
-        from lift3d.export.formats import read_pcd
+        from lift3d.export.writers.pcd import read_pcd
 
         d = read_pcd(p)
         n = len(d["xyz"])

@@ -120,3 +120,53 @@ def save_torch_atomic(path: str | Path, obj: Any) -> None:
     buf = io.BytesIO()
     torch.save(obj, buf)
     write_bytes_atomic(path, buf.getvalue())
+
+
+@contextlib.contextmanager
+def atomic_dir(path: str | Path) -> Iterator[Path]:
+    """Build a folder under a temporary name beside ``path``; on success swap it in place of ``path``.
+
+    Yields the path to fill, not yet created (some writers, rosbag2's among them, refuse an existing
+    folder), which already has ``path``'s own name (tools that name files after their folder, as rosbag2
+    does, see the final name) inside a hidden temporary parent. On any exception the
+    temporary tree is removed and ``path`` is untouched; on success every file is fsynced and an earlier
+    ``path`` is replaced (two renames: a reader sees the old folder, briefly none, then the new one).
+
+    Examples
+    --------
+    >>> import tempfile
+    >>> d = Path(tempfile.mkdtemp())
+    >>> with atomic_dir(d / "bag") as tmp:
+    ...     tmp.mkdir()
+    ...     _ = (tmp / "bag.txt").write_text("x")
+    >>> sorted(p.name for p in d.iterdir()), (d / "bag" / "bag.txt").read_text()
+    (['bag'], 'x')
+    """
+    import shutil
+
+    path = Path(path)
+    try:
+        path.parent.mkdir(parents=True, exist_ok=True)
+        parent = Path(tempfile.mkdtemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent))
+    except OSError as exc:
+        raise InputError(path.parent, f"cannot write here ({exc.strerror or exc})") from exc
+    staged = parent / path.name
+    old = parent / (path.name + ".old")
+    try:
+        yield staged
+        for f in staged.rglob("*"):
+            if f.is_file():
+                with open(f, "rb+") as fh:
+                    os.fsync(fh.fileno())
+        if path.exists():
+            os.replace(path, old)
+        os.replace(staged, path)
+        _fsync_dir(path.parent)
+    except BaseException as exc:
+        if old.exists() and not path.exists():
+            os.replace(old, path)  # put the earlier folder back
+        shutil.rmtree(parent, ignore_errors=True)
+        if isinstance(exc, OSError) and not isinstance(exc, InputError):
+            raise InputError(path, f"could not be written ({exc.strerror or exc})") from exc
+        raise
+    shutil.rmtree(parent, ignore_errors=True)
