@@ -20,7 +20,7 @@ $(STAMP): pyproject.toml Makefile
 	[ -x $(PY) ] || $(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install --quiet --upgrade pip
 	$(PY) -m pip install --quiet "$(TORCH_PIN)"
-	$(PY) -m pip install --quiet -e ".[test,label]"
+	$(PY) -m pip install --quiet -e ".[test,label,ros,octomap]"
 	touch $(STAMP)
 
 install: $(STAMP)

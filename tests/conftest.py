@@ -62,6 +62,26 @@ def tiny_scene(tmp_path: Path) -> Path:
     return root
 
 
+@pytest.fixture(scope="session")
+def tiny_run(tmp_path_factory) -> Path:
+    """A tiny synthetic scene trained for a few steps (geometry is rough, which is all the CLI needs).
+
+    Shared by the export tests (test_export.py, test_export_formats.py): trained once per session.
+    """
+    from lift3d.synth import make_scene
+    from lift3d.train.trainer import train
+
+    root = tmp_path_factory.mktemp("tiny_run")
+    make_scene(root / "scene", kind="indoor", seed=0, noise="moderate", n_views=6, width=32, height=32,
+               progress=False)
+    result = train(root / "scene", preset="fast", output_dir=root / "runs", progress=False, print_summary=False,
+                   overrides={"optim": {"steps": 15}, "losses": {"feature": 0.0},
+                              "data": {"patch_size": 0, "rays_per_image": 128},
+                              "field": {"grid_resolution_cap": 48},
+                              "trainer": {"eval_every": 0, "eval_images": 0, "checkpoint_every": 0}})
+    return Path(result.run.path)
+
+
 # tests/helpers holds scripts that tests launch in subprocesses (e.g. with torchrun); they are not test
 # modules and must not be imported (or doctest-collected) by pytest itself.
 collect_ignore = ["helpers"]

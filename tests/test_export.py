@@ -608,23 +608,6 @@ def test_failed_write_leaves_no_partial_file(analytic, tmp_path, monkeypatch):
 
 
 # ------------------------------------------------------------------------------------------ CLI end to end
-@pytest.fixture(scope="session")
-def tiny_run(tmp_path_factory) -> Path:
-    """A tiny synthetic scene trained for a few steps (geometry is rough, which is all the CLI needs)."""
-    from lift3d.synth import make_scene
-    from lift3d.train.trainer import train
-
-    root = tmp_path_factory.mktemp("tiny_run")
-    make_scene(root / "scene", kind="indoor", seed=0, noise="moderate", n_views=6, width=32, height=32,
-               progress=False)
-    result = train(root / "scene", preset="fast", output_dir=root / "runs", progress=False, print_summary=False,
-                   overrides={"optim": {"steps": 15}, "losses": {"feature": 0.0},
-                              "data": {"patch_size": 0, "rays_per_image": 128},
-                              "field": {"grid_resolution_cap": 48},
-                              "trainer": {"eval_every": 0, "eval_images": 0, "checkpoint_every": 0}})
-    return Path(result.run.path)
-
-
 def test_cli_end_to_end(tiny_run, tmp_path, capsys):
     from lift3d.cli.main import main
 
