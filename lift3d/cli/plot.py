@@ -15,6 +15,8 @@ interactive 3D view instead of the PNGs for FILE.ply, the written charts for --r
                            come from classes.json beside the file (or --classes), boxes from instances.json
                            (or computed from the points). Stuff on the sides facing the camera (near walls,
                            the ceiling from above) is cut away so the room's inside shows (--no-cutaway).
+                           --html OUT.html writes one self-contained web page instead (WebGL, no network):
+                           orbit/zoom, instance | class colours, legend; open it in any browser.
   lift3d plot --run RUN    views.png (photo | render | 2D pseudo-label | lifted panoptic | GT | depth for a
                            few test views) and curves.png (losses, PSNR, mIoU, PQ^scene over the steps).
   lift3d plot --bench DIR  pareto.png (PQ^scene, mIoU, PSNR vs training and render time per preset, against
@@ -27,6 +29,7 @@ instance previews); stuff is drawn in grey-ish tints of its class colour in inst
 examples:
   lift3d plot export/points.ply --views iso,top --boxes
   lift3d plot export/mesh.ply --turntable --window-size 800 400
+  lift3d plot export/points.ply --html export/points.html
   lift3d plot --run outputs/room0/fast/2026-11-22_101500
   lift3d plot --bench bench_out --output-dir docs/images"""
 
@@ -53,6 +56,10 @@ def add_parser(subparsers, verb: str) -> argparse.ArgumentParser:
                         "(default: iso)")
     g.add_argument("--classes", metavar="FILE", help="class table (default: classes.json beside FILE)")
     g.add_argument("--instances", metavar="FILE", help="instance boxes (default: instances.json beside FILE)")
+    g.add_argument("--html", metavar="OUT.html",
+                   help="write a self-contained interactive web page (WebGL, works offline) instead of PNGs")
+    g.add_argument("--html-max-points", type=int, default=400_000, metavar="N",
+                   help="--html: subsample point clouds beyond N points (default: 400000; meshes are kept whole)")
     g.add_argument("--boxes", action="store_true", help="draw a box and an 'id class' label per instance")
     g.add_argument("--turntable", action="store_true", help="also write an orbit animation")
     g.add_argument("--turntable-format", default="gif", choices=("gif", "mp4"),
@@ -98,6 +105,10 @@ def _check(args: argparse.Namespace) -> str:
         raise InputError("--point-size", f"must be positive (got {args.point_size})")
     if args.fps < 1:
         raise InputError("--fps", f"must be at least 1 (got {args.fps})")
+    if args.html and given[0] != "file":
+        raise InputError("--html", "draws a FILE.ply (not --run or --bench)")
+    if args.html and args.html_max_points < 1:
+        raise InputError("--html-max-points", f"must be at least 1 (got {args.html_max_points})")
     if args.show:
         from lift3d.viz.points import has_display
 
@@ -141,6 +152,11 @@ def _plot_file(args: argparse.Namespace) -> list[Path]:
                   hide=_split_list(args.hide), cutaway=not args.no_cutaway, up=args.up)
     out_dir = Path(args.output_dir) if args.output_dir else path.parent / "plots"
     written: list[Path] = []
+    if args.html:
+        from lift3d.viz.html import write_html
+
+        return [write_html(path, args.html, classes=args.classes, up=args.up, hide=common["hide"],
+                           point_size=args.point_size, max_points=args.html_max_points)]
     if args.show:
         size = tuple(args.window_size) if args.window_size else (1500, 650)
         pl = plot_instances(path, view=views[0], window_size=size, off_screen=False, **common)

@@ -6,6 +6,7 @@ Everything renders off-screen by default, so it works on headless machines; ``pl
 * :func:`plot_instances` — instance colours | class colours | legend of labelled points or a mesh
   (a ``points.ply`` / ``mesh.ply`` path, arrays, a dict, or the export API's dataclass).
 * :func:`save_views`, :func:`save_turntable` — PNG per camera view, GIF/MP4 orbit.
+* :func:`write_html` — one self-contained web page (WebGL, offline) with instance/class colours and a legend.
 * :func:`plot_run` — test views beside their labels, and training curves, of a run folder.
 * :func:`plot_pareto`, :func:`plot_scaling` — the benchmark's speed/accuracy and scaling charts.
 * :func:`instance_color`, :func:`semantic_color`, :func:`panoptic_color` — the palette: an instance id has
@@ -19,6 +20,7 @@ Examples
 """
 
 from lift3d.viz.bench import plot_pareto, plot_scaling
+from lift3d.viz.html import write_html
 from lift3d.viz.palette import (
     ClassInfo,
     instance_color,
@@ -44,4 +46,5 @@ __all__ = [
     "save_turntable",
     "save_views",
     "semantic_color",
+    "write_html",
 ]
