@@ -13,7 +13,7 @@ colour everywhere; stuff is drawn in grey-ish tints of its class colour in the i
 PyVista's ``export_html`` was considered and not used: it needs five more packages (trame, trame-vtk,
 trame-vuetify, trame-pyvista, nest_asyncio2), starts a trame server to export, tried to reach
 gitlab.kitware.com during the export, and writes 3.3 MB for 100 000 points (the vtk.js viewer alone is
-about 2.5 MB), where this page is the data plus 10 kB.
+about 2.5 MB), where this page is the data plus about 8 kB.
 
 Examples
 --------
