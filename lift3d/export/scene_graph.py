@@ -112,10 +112,14 @@ def build_scene_graph(xyz: np.ndarray, semantic: np.ndarray, instance: np.ndarra
                       "aabb": {"min": xyz[m].min(0).tolist(), "max": xyz[m].max(0).tolist()}})
 
     relations: list[dict[str, str]] = []
-    members = {int(r["id"]): np.flatnonzero(instance == r["id"]) for r in records}
+    order = np.argsort(instance, kind="stable")
+    bounds = np.searchsorted(instance[order], [(int(r["id"]), int(r["id"]) + 1) for r in records]).reshape(-1, 2)
+    members = {int(r["id"]): order[a:b] for r, (a, b) in zip(records, bounds)}
+    by_x = np.argsort(horiz[:, 0], kind="stable")  # candidate search: a slice of points sorted by x
+    sorted_x = horiz[by_x, 0]
     support: dict[int, str | None] = {}
     for r in records:
-        support[int(r["id"])] = _support(int(r["id"]), members[int(r["id"])], h, horiz, group, t)
+        support[int(r["id"])] = _support(int(r["id"]), members[int(r["id"])], h, horiz, group, t, by_x, sorted_x)
     for r in records:
         oid = int(r["id"])
         idx = members[oid]
@@ -133,13 +137,15 @@ def build_scene_graph(xyz: np.ndarray, semantic: np.ndarray, instance: np.ndarra
             "bottom": float(np.percentile(h[idx], BOTTOM_PERCENTILE)) if len(idx) else 0.0,
             "stands_on": None if sup is None else {"node": sup, "class_name": _node_class(sup, records, names)},
         })
-    ids = sorted(members)
+    ids = sorted(i for i in members if len(members[i]))
+    box = {i: (xyz[members[i]].min(0), xyz[members[i]].max(0), h[members[i]].min(), h[members[i]].max())
+           for i in ids}
     trees: dict[int, Any] = {}
     for i, a in enumerate(ids):
         for b in ids[i + 1:]:
             if support[a] == f"object:{b}" or support[b] == f"object:{a}":
                 continue
-            if _next_to(members[a], members[b], xyz, h, gap, trees, key=b):
+            if _next_to(members[a], members[b], xyz, box[a], box[b], gap, trees, key=b):
                 relations.append({"subject": f"object:{a}", "relation": "next_to", "object": f"object:{b}"})
     return {
         "up": up.tolist(),
@@ -151,16 +157,18 @@ def build_scene_graph(xyz: np.ndarray, semantic: np.ndarray, instance: np.ndarra
     }
 
 
-def _support(oid: int, idx: np.ndarray, h: np.ndarray, horiz: np.ndarray, group: np.ndarray,
-             t: float) -> str | None:
-    """The node an object stands on, or None (rule in the module docstring)."""
+def _support(oid: int, idx: np.ndarray, h: np.ndarray, horiz: np.ndarray, group: np.ndarray, t: float,
+             by_x: np.ndarray, sorted_x: np.ndarray) -> str | None:
+    """The node an object stands on, or None (rule in the module docstring). ``by_x`` orders all points by
+    horizontal x (``sorted_x`` those values), so candidates are found in a slice instead of all points."""
     from scipy.spatial import cKDTree
 
     if len(idx) == 0:
         return None
     bottom = np.percentile(h[idx], BOTTOM_PERCENTILE)
     lo, hi = horiz[idx].min(0) - 2 * t, horiz[idx].max(0) + 2 * t
-    near = np.flatnonzero(np.all((horiz >= lo) & (horiz <= hi), 1) & (group != oid))
+    near = by_x[np.searchsorted(sorted_x, lo[0]):np.searchsorted(sorted_x, hi[0], side="right")]
+    near = np.sort(near[(horiz[near, 1] >= lo[1]) & (horiz[near, 1] <= hi[1]) & (group[near] != oid)])
     if len(near) == 0:
         return None
     dist, _ = cKDTree(horiz[idx]).query(horiz[near], distance_upper_bound=2 * t)
@@ -178,17 +186,16 @@ def _support(oid: int, idx: np.ndarray, h: np.ndarray, horiz: np.ndarray, group:
     return f"object:{best}" if best > 0 else f"stuff:{-best}"
 
 
-def _next_to(a: np.ndarray, b: np.ndarray, xyz: np.ndarray, h: np.ndarray, gap: float, trees: dict,
+def _next_to(a: np.ndarray, b: np.ndarray, xyz: np.ndarray, box_a, box_b, gap: float, trees: dict,
              key: int) -> bool:
-    """Closest points at most ``gap`` apart and overlapping height ranges."""
+    """Closest points at most ``gap`` apart and overlapping height ranges (``box_*``: xyz min, max and the
+    height range of each object)."""
     from scipy.spatial import cKDTree
 
-    if len(a) == 0 or len(b) == 0:
-        return False
-    if h[a].max() < h[b].min() or h[b].max() < h[a].min():
+    if box_a[3] < box_b[2] or box_b[3] < box_a[2]:
         return False
     # Box distance first: most pairs are far apart.
-    box_gap = np.maximum(0, np.maximum(xyz[a].min(0) - xyz[b].max(0), xyz[b].min(0) - xyz[a].max(0)))
+    box_gap = np.maximum(0, np.maximum(box_a[0] - box_b[1], box_b[0] - box_a[1]))
     if np.linalg.norm(box_gap) > gap:
         return False
     if key not in trees:
