@@ -113,6 +113,8 @@ def export_run(run: str | Path, output_dir: str | Path | None = None, *, pointcl
     dict
         Paths written, counts, thresholds and seconds.
     """
+    import dataclasses
+
     import numpy as np
 
     from lift3d import __version__
@@ -181,7 +183,14 @@ def export_run(run: str | Path, output_dir: str | Path | None = None, *, pointcl
         source, link = "mesh vertices", labelled.thresholds.get("instance_link_radius")
     transform = np.asarray(pts.transform if pts is not None else labelled.transform)
     # The export's own length scale (about two field grid cells), for map cells when the user gave none.
-    default_resolution = float(point_options.get("voxel_size") or link or _world_cell(transform, frame))
+    if point_options.get("voxel_size"):
+        default_resolution, resolution_reason = float(point_options["voxel_size"]), "--voxel-size"
+    elif link:
+        default_resolution, resolution_reason = float(link), "the instance link radius (about two field grid cells)"
+    else:
+        default_resolution, resolution_reason = _world_cell(transform, frame), "1/128 of the foreground box"
+    if options.map_resolution:
+        resolution_reason = "--map-resolution"
     records = instance_records(*geo, names)
     summary["instances"] = len(records)
     ctx = ExportContext(out=out, points=pts, mesh=labelled, classes=classes, records=records, frame=frame,
@@ -204,10 +213,9 @@ def export_run(run: str | Path, output_dir: str | Path | None = None, *, pointcl
         "units": units,
         "up": {"axis": up.tolist(), "reason": up_reason},
         "thresholds": thresholds,
-        "formats": {"names": [w.name for w in writers], "map_resolution": ctx.resolution,
-                    "map_resolution_reason": "--map-resolution" if options.map_resolution else
-                    "--voxel-size" if point_options.get("voxel_size") else
-                    "the instance link radius (about two field grid cells)", **ctx.notes},
+        "formats": {"names": [w.name for w in writers], "options": dataclasses.asdict(options),
+                    "map_resolution": ctx.resolution,
+                    "map_resolution_reason": resolution_reason, **ctx.notes},
         "source_run": {"path": str(Path(loaded.run.path).resolve()), "step": int(loaded.step),
                        "scene": str(scene.root.resolve())},
         "command": command if command is not None else " ".join([Path(sys.argv[0]).name, *sys.argv[1:]]),
@@ -224,7 +232,7 @@ def export_run(run: str | Path, output_dir: str | Path | None = None, *, pointcl
 
 
 def _world_cell(transform, frame: str) -> float:
-    """1/256 of the normalised foreground box's side ([-1, 1]) in output units (a last-resort scale)."""
+    """1/128 of the normalised foreground box's side ([-1, 1], so 2/256) in output units (a last resort)."""
     import numpy as np
 
     scale = 1.0 if frame == "normalized" else float(np.cbrt(abs(np.linalg.det(np.asarray(transform)[:3, :3]))))
