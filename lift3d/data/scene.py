@@ -11,6 +11,7 @@ A scene folder holds posed images plus per-frame 2D panoptic pseudo-labels (and 
       gt/panoptic.json
       gt/points.ply                 optional 3D GT: x, y, z, semantic, instance
       depth/<name>.png              optional uint16 depth (``depth_unit_scale_factor`` metres per unit)
+      gt/depth/<name>.png           optional exact depth for evaluation (``gt_depth_file_path``)
 
 Pseudo-labels may instead come as two PNGs per frame (``semantic_file_path``: category ids,
 ``instance_file_path``: per-frame instance ids, 0 = none) and optional per-pixel confidence maps
@@ -135,6 +136,9 @@ class Frame:
     gt_segments: dict[int, Segment] = field(default_factory=dict)
     depth_path: Path | None = None
     mask_path: Path | None = None
+    gt_depth_path: Path | None = None
+    #: the true camera-to-world matrix when the written one is noisy (``gt_transform_matrix``), else None
+    gt_c2w: np.ndarray | None = None
 
 
 @dataclass
@@ -267,6 +271,15 @@ class Scene:
         self._check_size(i, f.depth_path, d, "depth map")
         return d
 
+    def gt_depth(self, i: int) -> np.ndarray | None:
+        """``float32 [H, W]`` exact depth of frame ``i`` for evaluation (``gt_depth_file_path``), or None."""
+        f = self.frames[i]
+        if f.gt_depth_path is None:
+            return None
+        d = read_depth(f.gt_depth_path, self.depth_unit_scale_factor)
+        self._check_size(i, f.gt_depth_path, d, "GT depth map")
+        return d
+
     def mask(self, i: int) -> np.ndarray | None:
         """``bool [H, W]`` pixels to train on (nerfstudio's ``mask_path``: 0 = ignore), or None."""
         f = self.frames[i]
@@ -296,6 +309,7 @@ class Scene:
             if self.frames[i].gt_panoptic_path is not None:
                 self.gt_labels(i)
             self.depth(i)
+            self.gt_depth(i)
             self.mask(i)
         self.gt_points()
 
@@ -568,6 +582,16 @@ def load_scene(root: str | Path) -> Scene:
             frame.depth_path = _resolve(root, fr["depth_file_path"], tpath, f"frames[{k}].depth_file_path")
         if "mask_path" in fr:
             frame.mask_path = _resolve(root, fr["mask_path"], tpath, f"frames[{k}].mask_path")
+        if "gt_depth_file_path" in fr:
+            frame.gt_depth_path = _resolve(root, fr["gt_depth_file_path"], tpath, f"frames[{k}].gt_depth_file_path")
+        if "gt_transform_matrix" in fr:
+            try:
+                gt_c2w = np.asarray(fr["gt_transform_matrix"], dtype=np.float64)
+            except (TypeError, ValueError):
+                gt_c2w = np.zeros(0)
+            if gt_c2w.shape != (4, 4) or not np.all(np.isfinite(gt_c2w)) or not is_rigid(gt_c2w, atol=1e-3):
+                raise InputError(tpath, f"frames[{k}].gt_transform_matrix: must be a finite rigid 4x4 matrix")
+            frame.gt_c2w = gt_c2w
         frames.append(frame)
 
     if not any(f.panoptic_path or f.semantic_path for f in frames):
@@ -732,11 +756,14 @@ class SceneWriter:
         gt_segments: Iterable[Segment] = (),
         depth: np.ndarray | None = None,
         distortion: dict[str, float] | None = None,
+        gt_depth: np.ndarray | None = None,
+        gt_c2w: np.ndarray | None = None,
     ) -> str:
         """Add one frame. ``c2w`` is camera-to-world in OpenGL axes; ``intrinsics`` is ``(fx, fy, cx, cy)``.
 
         Pseudo-labels come either as ``panoptic`` segment ids + ``segments`` (COCO panoptic) or as
-        ``semantic`` + ``instance`` maps (two-PNG layout). Returns the frame's ``file_path``."""
+        ``semantic`` + ``instance`` maps (two-PNG layout). ``gt_depth`` (metres) is the exact depth kept for
+        evaluation, ``gt_c2w`` the true pose when ``c2w`` is noisy. Returns the frame's ``file_path``."""
         h, w = image.shape[:2]
         file_path = f"images/{name}{self.image_ext}"
         write_rgb(self.root / file_path, image)
@@ -770,6 +797,11 @@ class SceneWriter:
         if depth is not None:
             fr["depth_file_path"] = f"depth/{name}.png"
             write_depth(self.root / fr["depth_file_path"], depth, self.depth_unit_scale_factor)
+        if gt_depth is not None:
+            fr["gt_depth_file_path"] = f"gt/depth/{name}.png"
+            write_depth(self.root / fr["gt_depth_file_path"], gt_depth, self.depth_unit_scale_factor)
+        if gt_c2w is not None:
+            fr["gt_transform_matrix"] = np.asarray(gt_c2w, float).tolist()
         self.frames.append(fr)
         return file_path
 
