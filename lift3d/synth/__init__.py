@@ -1,5 +1,5 @@
-"""``lift3d synth``: synthetic labelled scenes (indoor room, outdoor street) with a simulated noisy 2D
-panoptic segmenter. See :func:`make_scene` and ``docs/synth.md``."""
+"""``lift3d synth``: synthetic labelled scenes (indoor rooms, outdoor streets) with a simulated noisy 2D
+panoptic segmenter and sensor models. See :func:`make_scene` and ``docs/synth.md``."""
 
 from lift3d.synth.make import make_scene
 from lift3d.synth.noise import PRESETS, NoiseConfig

@@ -4,10 +4,11 @@ A synthetic scene is a set of triangle meshes, one per labelled object (a thing 
 stuff class such as a wall), cast with Open3D's ``RaycastingScene``. Every triangle carries a material; the
 colour of a surface point is
 
-``albedo(x) * (ambient + hemisphere * n_z + sum_k w_k max(0, n . l_k))``
+``albedo(x) * (ambient + hemisphere * n_z + sum_k c_k max(0, n . l_k))``   (per RGB channel)
 
 with ``albedo(x)`` a *solid* texture (a function of the world position ``x``, so it is the same in every
-view) and the shading Lambertian with fixed directional lights: the colour of a point does not depend on the
+view) and the shading Lambertian with fixed directional lights of colour ``c_k`` (a colour temperature times
+an intensity, drawn per scene; :class:`Lighting`): the colour of a point does not depend on the
 viewing direction, which keeps the scenes learnable by a radiance field. Normals are turned towards the viewer
 (two-sided surfaces); curved parts interpolate vertex normals so spheres and cylinders look round.
 
@@ -334,22 +335,33 @@ class SceneObject:
     """One labelled piece of the scene: a thing instance or a piece of a stuff class.
 
     ``segment_id`` is the scene-consistent GT panoptic id (stuff: the category id; things: 1000 + k).
+    ``rests_on`` is the ``segment_id`` of the thing this one stands on (a cup on a table), 0 for the floor
+    or ground.
     """
 
     segment_id: int
     category_id: int
     mesh: Mesh
     name: str = ""
+    rests_on: int = 0
 
 
 @dataclass
 class Lighting:
-    """Lambertian lighting: ``ambient + hemisphere * n_z + sum_k weights[k] * max(0, n . directions[k])``."""
+    """Lambertian lighting of a surface with normal ``n`` (RGB, per channel):
 
-    ambient: float
-    hemisphere: float
+    ``ambient + hemisphere * n_z + sum_k colors[k] * max(0, n . directions[k])``.
+    """
+
+    ambient: np.ndarray  # [3] RGB ambient level
+    hemisphere: float  # extra light on upward-facing surfaces (sky / ceiling bounce)
     directions: np.ndarray  # [L, 3] unit vectors towards the lights
-    weights: np.ndarray  # [L]
+    colors: np.ndarray  # [L, 3] RGB intensity of each light (its colour temperature times its strength)
+
+    def shade(self, normals: np.ndarray) -> np.ndarray:
+        """``[N, 3]`` RGB irradiance factor of unit ``normals`` ``[N, 3]``."""
+        out = self.ambient[None, :] + self.hemisphere * normals[:, 2:3]
+        return out + np.maximum(normals @ self.directions.T, 0.0) @ self.colors
 
 
 @dataclass
@@ -369,14 +381,21 @@ class SceneContent:
     aabb: np.ndarray
     sky_category: int | None = None
     depth_unit_scale_factor: float = 1e-3
-    #: free space for cameras (indoor): (x, y) centres and radii of object footprints
-    footprints: list[tuple[np.ndarray, float]] = field(default_factory=list)
-    extra: dict = field(default_factory=dict)
+    #: indoor: the room's floor outline, ``[K, 2]`` (x, y) corners counter-clockwise (walls stand on its edges)
+    room_polygon: np.ndarray | None = None
+    #: what the seed chose (room shape and size, textures, lighting, objects, street layout): JSON-ready, written
+    #: to ``transforms.json`` under ``lift3d_synth.scene``
+    description: dict = field(default_factory=dict)
 
     @property
     def things(self) -> list[SceneObject]:
         cats = {c.id: c for c in self.categories}
         return [o for o in self.objects if cats[o.category_id].isthing]
+
+    @property
+    def floor_things(self) -> list[SceneObject]:
+        """Things standing on the floor (obstacles for a walking camera)."""
+        return [o for o in self.things if o.rests_on == 0]
 
 
 def sky_color(directions: np.ndarray) -> np.ndarray:
@@ -396,30 +415,8 @@ def sky_color(directions: np.ndarray) -> np.ndarray:
     return np.clip(col, 0.0, 1.0)
 
 
-# --------------------------------------------------------------------------------------------- indoor
-INDOOR_CATEGORIES = [
-    Category(1, "wall", False, (174, 199, 232)),
-    Category(2, "floor", False, (152, 223, 138)),
-    Category(3, "ceiling", False, (78, 71, 183)),
-    Category(4, "rug", False, (255, 187, 120)),
-    Category(5, "window", False, (197, 176, 213)),
-    Category(6, "table", True, (255, 127, 14)),
-    Category(7, "chair", True, (188, 189, 34)),
-    Category(8, "cabinet", True, (31, 119, 180)),
-    Category(9, "ball", True, (214, 39, 40)),
-    Category(10, "lamp", True, (227, 119, 194)),
-    Category(11, "plant", True, (44, 160, 44)),
-    Category(12, "sculpture", True, (140, 86, 75)),
-    Category(13, "toy_plane", True, (23, 190, 207)),
-]
-
-INDOOR_CONFUSABLE = {
-    1: [5, 3], 2: [4, 1], 3: [1], 4: [2], 5: [1],
-    6: [8, 7], 7: [6, 8], 8: [6, 7], 9: [10, 11, 12], 10: [11, 12], 11: [10, 9], 12: [13, 9, 11], 13: [12, 7],
-}
-
-
-def _hsv(h: float, s: float, v: float) -> np.ndarray:
+# --------------------------------------------------------------------------------------------- colours
+def hsv(h: float, s: float, v: float) -> np.ndarray:
     """HSV (all in [0, 1]) → RGB."""
     i = int(h * 6) % 6
     f = h * 6 - int(h * 6)
@@ -427,399 +424,40 @@ def _hsv(h: float, s: float, v: float) -> np.ndarray:
     return np.array([(v, t, p), (q, v, p), (p, v, t), (p, q, v), (t, p, v), (v, p, q)][i])
 
 
-def _two_tone(rng: np.random.Generator, hue: float, sat: float, val: float, spread: float = 0.18) -> tuple:
-    """Two related colours around a hue (the two ends of a material's blend)."""
+def two_tone(rng: np.random.Generator, hue: float, sat: float, val: float, spread: float = 0.18) -> tuple:
+    """Two related colours around a hue (the two ends of a material's blend); ``spread`` is their brightness
+    difference (0.01: near-uniform, 0.4: strongly two-tone)."""
     h0 = (hue + rng.uniform(-0.03, 0.03)) % 1.0
-    a = _hsv(h0, np.clip(sat + rng.uniform(-0.1, 0.1), 0, 1), np.clip(val + spread / 2, 0, 1))
-    b = _hsv((h0 + rng.uniform(-0.04, 0.04)) % 1.0, np.clip(sat + rng.uniform(0.0, 0.15), 0, 1),
-             np.clip(val - spread / 2, 0, 1))
+    a = hsv(h0, np.clip(sat + rng.uniform(-0.1, 0.1), 0, 1), np.clip(val + spread / 2, 0, 1))
+    b = hsv((h0 + rng.uniform(-0.04, 0.04)) % 1.0, np.clip(sat + rng.uniform(0.0, 0.15), 0, 1),
+            np.clip(val - spread / 2, 0, 1))
     return a, b
 
 
-# Furniture: each builder returns a mesh standing on z = 0, centred on the z axis, and the radius of its
-# floor footprint (used to place objects without overlap).
-def _table(rng, mat) -> tuple[Mesh, float]:
-    w, d, h = rng.uniform(1.0, 1.4), rng.uniform(0.6, 0.85), rng.uniform(0.70, 0.78)
-    top = box_mesh([-w / 2, -d / 2, h - 0.05], [w / 2, d / 2, h], mat)
-    legs = [box_mesh([sx * (w / 2 - 0.05) - 0.04, sy * (d / 2 - 0.05) - 0.04, 0.0],
-                     [sx * (w / 2 - 0.05) + 0.04, sy * (d / 2 - 0.05) + 0.04, h - 0.05], mat)
-            for sx in (-1, 1) for sy in (-1, 1)]
-    return concat_meshes([top] + legs), 0.5 * np.hypot(w, d)
+def kelvin_rgb(kelvin: float, white_balance: float = 0.5) -> np.ndarray:
+    """RGB tint of a light of colour temperature ``kelvin`` (mean 1).
 
+    Tanner Helland's fit of the black-body colour in sRGB, moved ``white_balance`` of the way towards white,
+    as a camera's automatic white balance partly corrects a warm or cold light.
 
-def _chair(rng, mat) -> tuple[Mesh, float]:
-    s, h = rng.uniform(0.42, 0.5), rng.uniform(0.43, 0.48)
-    seat = box_mesh([-s / 2, -s / 2, h - 0.05], [s / 2, s / 2, h], mat)
-    back = box_mesh([-s / 2, s / 2 - 0.05, h], [s / 2, s / 2, h + rng.uniform(0.4, 0.5)], mat)
-    legs = [box_mesh([sx * (s / 2 - 0.03) - 0.025, sy * (s / 2 - 0.03) - 0.025, 0.0],
-                     [sx * (s / 2 - 0.03) + 0.025, sy * (s / 2 - 0.03) + 0.025, h - 0.05], mat)
-            for sx in (-1, 1) for sy in (-1, 1)]
-    return concat_meshes([seat, back] + legs), s / np.sqrt(2)
-
-
-def _cabinet(rng, mat) -> tuple[Mesh, float]:
-    w, d, h = rng.uniform(0.6, 1.0), rng.uniform(0.4, 0.5), rng.uniform(0.9, 1.5)
-    body = box_mesh([-w / 2, -d / 2, 0.0], [w / 2, d / 2, h], mat)
-    top = box_mesh([-w / 2 - 0.02, -d / 2 - 0.02, h], [w / 2 + 0.02, d / 2 + 0.02, h + 0.03], mat)
-    return concat_meshes([body, top]), 0.5 * np.hypot(w + 0.04, d + 0.04)
-
-
-def _ball(rng, mat) -> tuple[Mesh, float]:
-    r = rng.uniform(0.15, 0.28)
-    return sphere_mesh(r, mat).transformed(np.eye(3), [0, 0, r]), r
-
-
-def _lamp(rng, mat, mat_shade) -> tuple[Mesh, float]:
-    h = rng.uniform(1.3, 1.6)
-    base = cylinder_mesh(0.17, 0.04, mat)
-    pole = cylinder_mesh(0.035, h, mat, segments=12)
-    shade = lathe_mesh([0.24, 0.15], [0.0, 0.3], mat_shade).transformed(np.eye(3), [0, 0, h - 0.12])
-    return concat_meshes([base, pole, shade]), 0.24
-
-
-def _plant(rng, mat_pot, mat_leaves) -> tuple[Mesh, float]:
-    pot_h = rng.uniform(0.28, 0.36)
-    pot = lathe_mesh([0.13, 0.18], [0.0, pot_h], mat_pot)
-    crowns = []
-    for k in range(3):
-        r = rng.uniform(0.18, 0.26)
-        ang = 2 * np.pi * k / 3 + rng.uniform(-0.4, 0.4)
-        off = np.array([0.1 * np.cos(ang), 0.1 * np.sin(ang), pot_h + 0.12 + r + 0.12 * k])
-        crowns.append(sphere_mesh(r, mat_leaves).transformed(np.eye(3), off))
-    return concat_meshes([pot] + crowns), 0.38
-
-
-def _sculpture(rng, mat, which: str) -> tuple[Mesh, float]:
-    if which == "nut":
-        m = fit_on_floor(example_mesh("nut", mat), rng.uniform(0.45, 0.6), up_axis=1)
-    else:
-        m = fit_on_floor(example_mesh("ant", mat), rng.uniform(0.6, 0.8), up_axis=1)
-    lo, hi = m.bounds
-    return m, 0.5 * np.hypot(hi[0] - lo[0], hi[1] - lo[1])
-
-
-def _toy_plane(rng, mat) -> tuple[Mesh, float]:
-    m = fit_on_floor(example_mesh("airplane", mat), rng.uniform(0.9, 1.2), up_axis=2)
-    lo, hi = m.bounds
-    return m, 0.5 * np.hypot(hi[0] - lo[0], hi[1] - lo[1])
-
-
-def build_indoor(rng: np.random.Generator) -> SceneContent:
-    """A furnished room: walls, floor, ceiling, a rug and windows (stuff) and 8-15 objects of 8 thing classes,
-    placed on the floor without overlapping.
-
-    Parameters
-    ----------
-    rng : np.random.Generator
-        The layout's random stream (the same stream gives the same room).
+    Examples
+    --------
+    >>> np.round(kelvin_rgb(2700), 2).tolist(), np.round(kelvin_rgb(6500), 2).tolist()
+    ([1.2, 0.99, 0.81], [1.0, 1.0, 0.99])
     """
-    mats = MaterialBank(rng)
-    width, depth, height = rng.uniform(5.5, 7.0), rng.uniform(4.5, 6.0), rng.uniform(2.7, 3.1)
-    hx, hy = width / 2, depth / 2
-    objects: list[SceneObject] = []
-
-    # ---- stuff: one object per surface; surfaces overlap at the corners so no ray slips through a crack.
-    pad = 0.05
-    wall_hue = rng.uniform(0.05, 0.15)
-    wall_mat = mats.add(*_two_tone(rng, wall_hue, 0.15, 0.85, 0.10), 1.2, gain=1.0)
-    floor_mat = mats.add(*_two_tone(rng, rng.uniform(0.06, 0.1), 0.55, 0.55, 0.22), 0.9, gain=1.4, flat_z=True,
-                         stripe=(np.array([1.0, 0.0, 0.0]), 0.45, 1.6))
-    ceil_mat = mats.add(_hsv(0.12, 0.05, 0.92), _hsv(0.12, 0.08, 0.84), 1.5, gain=0.8)
-    walls = [
-        quad_mesh([-hx - pad, -hy, -pad], [width + 2 * pad, 0, 0], [0, 0, height + 2 * pad], wall_mat),
-        quad_mesh([-hx - pad, hy, -pad], [width + 2 * pad, 0, 0], [0, 0, height + 2 * pad], wall_mat),
-        quad_mesh([-hx, -hy - pad, -pad], [0, depth + 2 * pad, 0], [0, 0, height + 2 * pad], wall_mat),
-        quad_mesh([hx, -hy - pad, -pad], [0, depth + 2 * pad, 0], [0, 0, height + 2 * pad], wall_mat),
-    ]
-    objects.append(SceneObject(1, 1, concat_meshes(walls), "wall"))
-    objects.append(SceneObject(2, 2, quad_mesh([-hx - pad, -hy - pad, 0], [width + 2 * pad, 0, 0],
-                                               [0, depth + 2 * pad, 0], floor_mat), "floor"))
-    objects.append(SceneObject(3, 3, quad_mesh([-hx - pad, -hy - pad, height], [width + 2 * pad, 0, 0],
-                                               [0, depth + 2 * pad, 0], ceil_mat), "ceiling"))
-    rug_w, rug_d = rng.uniform(1.8, 2.8), rng.uniform(1.3, 2.0)
-    rug_c = rng.uniform(-0.4, 0.4, 2)
-    rug_mat = mats.add(*_two_tone(rng, rng.uniform(0.55, 1.0), 0.55, 0.6, 0.3), 0.7, gain=2.0, flat_z=True,
-                       grid=(np.array([1.0, 1.0, 0]), np.array([1.0, -1.0, 0]), 0.6, 0.35, _hsv(0.13, 0.3, 0.9)))
-    objects.append(SceneObject(4, 4, quad_mesh([rug_c[0] - rug_w / 2, rug_c[1] - rug_d / 2, 0.006],
-                                               [rug_w, 0, 0], [0, rug_d, 0], rug_mat), "rug"))
-    win_mat = mats.add(_hsv(0.58, 0.35, 0.95), _hsv(0.55, 0.5, 0.8), 1.0, gain=1.0,
-                       grid=(np.array([1.0, 1.0, 0.0]), np.array([0.0, 0.0, 1.0]), 0.7, 0.3, (0.95, 0.95, 0.95)))
-    windows = []
-    for wall_side in rng.choice(4, size=2, replace=False):
-        ww, wh, wz = rng.uniform(1.1, 1.6), rng.uniform(0.9, 1.2), rng.uniform(0.9, 1.1)
-        if wall_side < 2:  # walls at y = -hy / +hy
-            y = -hy + 0.01 if wall_side == 0 else hy - 0.01
-            x0 = rng.uniform(-hx + 0.4, hx - 0.4 - ww)
-            windows.append(quad_mesh([x0, y, wz], [ww, 0, 0], [0, 0, wh], win_mat))
-        else:
-            x = -hx + 0.01 if wall_side == 2 else hx - 0.01
-            y0 = rng.uniform(-hy + 0.4, hy - 0.4 - ww)
-            windows.append(quad_mesh([x, y0, wz], [0, ww, 0], [0, 0, wh], win_mat))
-    objects.append(SceneObject(5, 5, concat_meshes(windows), "window"))
-
-    # ---- things: how many of each class (9-17 drawn, every class at least once; crowded rooms drop some).
-    counts = {
-        "cabinet": int(rng.integers(1, 3)), "lamp": 1, "plant": int(rng.integers(1, 3)),
-        "table": int(rng.integers(1, 3)), "chair": int(rng.integers(2, 4)), "ball": int(rng.integers(1, 4)),
-        "sculpture": int(rng.integers(1, 3)), "toy_plane": 1,
-    }
-    cat_of = {c.name: c.id for c in INDOOR_CATEGORIES}
-    along_wall = {"cabinet", "lamp", "plant"}  # these stand near walls; the rest in the middle of the room
-    footprints: list[tuple[np.ndarray, float]] = []
-    next_id = 1001
-    sculpt_kinds = ["nut", "ant"]
-    rng.shuffle(sculpt_kinds)
-    for name in ["cabinet", "lamp", "plant", "table", "chair", "toy_plane", "sculpture", "ball"]:
-        for k in range(counts[name]):
-            hue = {"table": 0.08, "cabinet": 0.07, "chair": rng.uniform(0, 1), "ball": rng.uniform(0, 1),
-                   "lamp": rng.uniform(0, 1), "plant": 0.05, "sculpture": rng.uniform(0, 1),
-                   "toy_plane": rng.uniform(0, 1)}[name]
-            if name in ("table", "cabinet"):  # wood: brown, grain along x
-                mat = mats.add(*_two_tone(rng, hue, 0.6, 0.5, 0.25), 0.5, gain=1.5,
-                               stripe=(np.array([1.0, 0.2, 0.0]), 0.45, 1.2))
-            else:
-                mat = mats.add(*_two_tone(rng, hue, 0.6, 0.7, 0.3), rng.uniform(0.45, 0.7), gain=1.3)
-            if name == "table":
-                mesh, radius = _table(rng, mat)
-            elif name == "chair":
-                mesh, radius = _chair(rng, mat)
-            elif name == "cabinet":
-                mesh, radius = _cabinet(rng, mat)
-            elif name == "ball":
-                mesh, radius = _ball(rng, mat)
-            elif name == "lamp":
-                shade = mats.add(*_two_tone(rng, 0.12, 0.25, 0.9, 0.1), 0.5, gain=1.0)
-                mesh, radius = _lamp(rng, mat, shade)
-            elif name == "plant":
-                leaves = mats.add(*_two_tone(rng, rng.uniform(0.25, 0.38), 0.65, 0.5, 0.3), 0.45, gain=1.4)
-                mesh, radius = _plant(rng, mat, leaves)
-            elif name == "sculpture":
-                mesh, radius = _sculpture(rng, mat, sculpt_kinds[k % 2])
-            else:
-                mesh, radius = _toy_plane(rng, mat)
-            placed = _place(rng, radius, hx, hy, footprints, near_wall=name in along_wall)
-            if placed is None:
-                continue  # no room left: drop the object (the count check below keeps >= 8)
-            centre, yaw = placed
-            footprints.append((centre, radius))
-            mesh = mesh.transformed(rotation_z(yaw), [centre[0], centre[1], 0.0])
-            objects.append(SceneObject(next_id, cat_of[name], mesh, f"{name}_{k}"))
-            next_id += 1
-    n_things = next_id - 1001
-    if n_things < 8:
-        raise RuntimeError(f"could only place {n_things} objects in the room (need 8)")
-    aabb = np.array([[-hx, -hy, 0.0], [hx, hy, height]])
-    return SceneContent(
-        kind="indoor", categories=list(INDOOR_CATEGORIES), objects=objects, materials=mats,
-        lighting=Lighting(0.42, 0.10, np.array([_unit([0.35, 0.25, 1.0]), _unit([-0.6, -0.7, 0.35])]),
-                          np.array([0.42, 0.22])),
-        confusable=INDOOR_CONFUSABLE, scene_box_type="bounded", aabb=aabb, depth_unit_scale_factor=1e-3,
-        footprints=footprints, extra={"room_size": [width, depth, height]},
-    )
+    t = kelvin / 100.0
+    r = 255.0 if t <= 66 else 329.698727446 * (t - 60) ** -0.1332047592
+    g = 99.4708025861 * np.log(t) - 161.1195681661 if t <= 66 else 288.1221695283 * (t - 60) ** -0.0755148492
+    b = 255.0 if t >= 66 else (0.0 if t <= 19 else 138.5177312231 * np.log(t - 10) - 305.0447927307)
+    rgb = np.clip(np.array([r, g, b], np.float64), 0, 255) / 255.0
+    rgb = white_balance + (1 - white_balance) * rgb
+    return rgb / rgb.mean()
 
 
-def _unit(v) -> np.ndarray:
+def unit(v) -> np.ndarray:
+    """``v`` scaled to length 1."""
     v = np.asarray(v, np.float64)
     return v / np.linalg.norm(v)
-
-
-def _place(rng, radius: float, hx: float, hy: float, footprints, near_wall: bool,
-           gap: float = 0.12, tries: int = 300) -> tuple[np.ndarray, float] | None:
-    """A free floor position (bounding circles do not overlap) and a yaw; None when none was found."""
-    for _ in range(tries):
-        if near_wall:
-            side = rng.integers(4)
-            along = rng.uniform(-1, 1)
-            off = radius + 0.03
-            if side == 0:
-                c, yaw = np.array([along * (hx - off), -hy + off]), 0.0
-            elif side == 1:
-                c, yaw = np.array([along * (hx - off), hy - off]), np.pi
-            elif side == 2:
-                c, yaw = np.array([-hx + off, along * (hy - off)]), -np.pi / 2
-            else:
-                c, yaw = np.array([hx - off, along * (hy - off)]), np.pi / 2
-        else:
-            # The middle of the room: cameras circle around it.
-            c = np.array([rng.uniform(-0.55, 0.55) * hx, rng.uniform(-0.55, 0.55) * hy])
-            yaw = rng.uniform(0, 2 * np.pi)
-        if abs(c[0]) > hx - radius - 0.02 or abs(c[1]) > hy - radius - 0.02:
-            continue
-        if all(np.linalg.norm(c - p) > radius + r + gap for p, r in footprints):
-            return c, float(yaw)
-    return None
-
-
-# --------------------------------------------------------------------------------------------- outdoor
-OUTDOOR_CATEGORIES = [
-    Category(1, "road", False, (128, 64, 128)),
-    Category(2, "sidewalk", False, (244, 35, 232)),
-    Category(3, "building", False, (70, 70, 70)),
-    Category(4, "terrain", False, (152, 251, 152)),
-    Category(5, "sky", False, (70, 130, 180)),
-    Category(6, "car", True, (0, 0, 142)),
-    Category(7, "van", True, (0, 60, 100)),
-    Category(8, "pedestrian", True, (220, 20, 60)),
-    Category(9, "tree", True, (107, 142, 35)),
-    Category(10, "streetlight", True, (250, 170, 30)),
-]
-
-OUTDOOR_CONFUSABLE = {
-    1: [2], 2: [1, 4], 3: [5], 4: [2], 5: [3],
-    6: [7], 7: [6], 8: [10], 9: [10], 10: [9, 8],
-}
-
-#: Street layout (metres): the road spans |x| < ROAD_HALF, then a grass strip, the sidewalk, the façades.
-ROAD_HALF, GRASS_END, SIDEWALK_END = 4.0, 5.2, 8.5
-STREET_START, STREET_END = -40.0, 520.0
-
-
-def _car(rng, body_mat: int, glass_mat: int, tyre_mat: int, van: bool) -> Mesh:
-    """A car (body + glass cabin) or a van (tall body + windscreen) on four wheels, along +y, on z = 0."""
-    length = rng.uniform(4.6, 5.4) if van else rng.uniform(3.9, 4.6)
-    width = rng.uniform(1.9, 2.1) if van else rng.uniform(1.7, 1.85)
-    body_h = rng.uniform(1.5, 1.8) if van else rng.uniform(0.65, 0.8)
-    parts = [box_mesh([-width / 2, -length / 2, 0.3], [width / 2, length / 2, 0.3 + body_h], body_mat)]
-    if van:
-        parts.append(box_mesh([-width / 2 + 0.05, length / 2 - 1.2, 0.9], [width / 2 - 0.05, length / 2 + 0.02,
-                                                                            0.3 + body_h - 0.15], glass_mat))
-    else:
-        cab_l = length * rng.uniform(0.45, 0.55)
-        y0 = -length / 2 + length * rng.uniform(0.2, 0.3)
-        parts.append(box_mesh([-width / 2 + 0.1, y0, 0.3 + body_h], [width / 2 - 0.1, y0 + cab_l, 0.3 + body_h + 0.55],
-                              glass_mat))
-    rot_x = np.array([[0.0, 0.0, 1.0], [0.0, 1.0, 0.0], [-1.0, 0.0, 0.0]])  # wheel axis along x
-    for sx in (-1, 1):
-        for sy in (-1, 1):
-            # The rotated cylinder spans x in [0, 0.24]: shift it so the tyre is centred under the body's edge.
-            wheel = cylinder_mesh(0.34, 0.24, tyre_mat, segments=16).transformed(
-                rot_x, [sx * (width / 2 - 0.1) - 0.12, sy * (length / 2 - 0.8), 0.34])
-            parts.append(wheel)
-    return concat_meshes(parts)
-
-
-def build_outdoor(rng: np.random.Generator) -> SceneContent:
-    """An unbounded street along +y: road, grass strips, sidewalks and façades reaching hundreds of metres,
-    with parked cars and vans, pedestrians, trees and streetlights; sky where nothing is hit.
-
-    Parameters
-    ----------
-    rng : np.random.Generator
-        The layout's random stream.
-    """
-    mats = MaterialBank(rng)
-    objects: list[SceneObject] = []
-    length = STREET_END - STREET_START
-    road_mat = mats.add((0.36, 0.36, 0.38), (0.27, 0.27, 0.29), 3.0, gain=1.2, flat_z=True,
-                        grid=(np.array([0.0, 1.0, 0.0]), np.array([1.0, 0.0, 0.0]), 8.0, 0.0, (0.9, 0.9, 0.85)))
-    objects.append(SceneObject(1, 1, quad_mesh([-ROAD_HALF - 0.05, STREET_START, 0.0], [2 * ROAD_HALF + 0.1, 0, 0],
-                                               [0, length, 0], road_mat), "road"))
-    walk_mat = mats.add((0.66, 0.63, 0.6), (0.55, 0.53, 0.5), 2.0, gain=1.0, flat_z=True,
-                        grid=(np.array([1.0, 0.0, 0.0]), np.array([0.0, 1.0, 0.0]), 1.6, 0.25, (0.75, 0.73, 0.7)))
-    grass_mat = mats.add((0.33, 0.52, 0.2), (0.22, 0.4, 0.14), 1.5, gain=1.4, flat_z=True)
-    walks, grass = [], []
-    for side in (-1, 1):
-        # Raised by 12 cm: the kerb is a box side visible from the road.
-        lo_g = min(side * ROAD_HALF, side * GRASS_END)
-        grass.append(box_mesh([lo_g, STREET_START, -0.5], [lo_g + GRASS_END - ROAD_HALF, STREET_END, 0.12], grass_mat))
-        lo_w = min(side * GRASS_END, side * SIDEWALK_END)
-        walks.append(box_mesh([lo_w, STREET_START, -0.5], [lo_w + SIDEWALK_END - GRASS_END, STREET_END, 0.12],
-                              walk_mat))
-    objects.append(SceneObject(2, 2, concat_meshes(walks), "sidewalk"))
-    objects.append(SceneObject(4, 4, concat_meshes(grass), "terrain"))
-
-    # ---- façades: boxes of random width and height on both sides, and one across the far end of the street.
-    buildings = []
-    for side in (-1, 1):
-        y = STREET_START
-        while y < STREET_END:
-            w = rng.uniform(10.0, 24.0)
-            h = rng.uniform(7.0, 22.0)
-            d = rng.uniform(10.0, 16.0)
-            hue = rng.choice([0.05, 0.08, 0.1, 0.55, 0.0])
-            c0, c1 = _two_tone(rng, hue, rng.uniform(0.1, 0.35), rng.uniform(0.55, 0.8), 0.12)
-            mat = mats.add(c0, c1, 4.0, gain=1.0,
-                           grid=(np.array([0.0, 1.0, 0.0]), np.array([0.0, 0.0, 1.0]), rng.uniform(2.8, 3.6),
-                                 0.55, _hsv(0.58, 0.25, 0.35)))
-            x_in = side * (SIDEWALK_END + rng.uniform(0.0, 0.6))
-            lo = [min(x_in, x_in + side * d), y, -0.5]
-            hi = [max(x_in, x_in + side * d), min(y + w, STREET_END), h]
-            buildings.append(box_mesh(lo, hi, mat))
-            y += w + (rng.uniform(2.0, 6.0) if rng.random() < 0.3 else 0.0)
-    end_mat = mats.add((0.7, 0.62, 0.55), (0.6, 0.52, 0.47), 6.0, gain=1.0,
-                       grid=(np.array([1.0, 0.0, 0.0]), np.array([0.0, 0.0, 1.0]), 3.5, 0.5, _hsv(0.58, 0.25, 0.35)))
-    buildings.append(box_mesh([-70.0, STREET_END, -0.5], [70.0, STREET_END + 12.0, 40.0], end_mat))
-    objects.append(SceneObject(3, 3, concat_meshes(buildings), "building"))
-
-    # ---- things.
-    cat_of = {c.name: c.id for c in OUTDOOR_CATEGORIES}
-    next_id = 1001
-    tyre = mats.add((0.08, 0.08, 0.08), (0.14, 0.14, 0.14), 0.5, gain=1.0)
-    glass = mats.add((0.2, 0.25, 0.3), (0.35, 0.4, 0.45), 1.5, gain=1.0)
-
-    def add(name: str, mesh: Mesh) -> None:
-        nonlocal next_id
-        objects.append(SceneObject(next_id, cat_of[name], mesh, f"{name}_{next_id - 1000}"))
-        next_id += 1
-
-    # Parked cars along both kerbs, densely near the start of the street so they are seen up close.
-    for side in (-1, 1):
-        y = STREET_START + 30 + rng.uniform(0, 4)
-        while y < 200.0:
-            if rng.random() < (0.75 if y < 60 else 0.45):
-                van = rng.random() < 0.25
-                body = mats.add(*_two_tone(rng, rng.uniform(0, 1), rng.uniform(0.2, 0.8), rng.uniform(0.4, 0.85), 0.15),
-                                1.2, gain=1.0)
-                mesh = _car(rng, body, glass, tyre, van)
-                x = side * (ROAD_HALF - 1.15)
-                add("van" if van else "car", mesh.transformed(rotation_z(rng.uniform(-0.04, 0.04)), [x, y + 2.5, 0.0]))
-                y += (5.6 if van else 5.0) + rng.uniform(0.3, 1.5)
-            else:
-                y += rng.uniform(4.0, 9.0)
-    # Trees on the grass strips, streetlights on the sidewalk edge between them, pedestrians on the sidewalks.
-    trunk_mat = mats.add((0.35, 0.25, 0.16), (0.25, 0.17, 0.1), 0.6, gain=1.0)
-    pole_mat = mats.add((0.45, 0.47, 0.5), (0.35, 0.37, 0.4), 1.0, gain=1.0)
-    for side in (-1, 1):
-        tree_ys = np.arange(STREET_START + 35 + rng.uniform(0, 5), 320.0, 13.0)
-        for y in tree_ys:
-            y = y + rng.uniform(-1.5, 1.5)
-            crown = mats.add(*_two_tone(rng, rng.uniform(0.22, 0.33), 0.6, 0.45, 0.2), 0.7, gain=1.0)
-            h = rng.uniform(2.2, 3.0)
-            r = rng.uniform(1.4, 2.0)
-            tree = concat_meshes([cylinder_mesh(0.16, h + 0.5, trunk_mat, segments=12),
-                                  sphere_mesh(r, crown).transformed(np.eye(3), [0, 0, h + r * 0.8])])
-            add("tree", tree.transformed(np.eye(3), [side * (ROAD_HALF + GRASS_END) / 2, y, 0.12]))
-        occupied = []  # (y, radius) along this sidewalk: streetlights and pedestrians do not overlap
-        for y in tree_ys[1::2] + 6.5:  # half-way between two trees, so no pole grows through a crown
-            h = rng.uniform(6.0, 7.0)
-            arm = box_mesh([0.0, -0.08, h - 0.15], [1.6, 0.08, h], pole_mat)
-            head = box_mesh([1.2, -0.22, h - 0.3], [1.9, 0.22, h - 0.1], pole_mat)
-            light = concat_meshes([cylinder_mesh(0.15, h, pole_mat, segments=12), arm, head])
-            yaw = 0.0 if side < 0 else np.pi  # the arm reaches over the road
-            add("streetlight", light.transformed(rotation_z(yaw), [side * (GRASS_END + 0.4), y, 0.12]))
-            occupied.append((np.array([side * (GRASS_END + 0.4), y]), 0.2))
-        for _ in range(int(rng.integers(5, 9))):
-            for _try in range(50):
-                pos = np.array([side * rng.uniform(GRASS_END + 0.8, SIDEWALK_END - 0.4), rng.uniform(5.0, 90.0)])
-                if all(np.linalg.norm(pos - q) > r + 0.5 for q, r in occupied):
-                    break
-            else:
-                continue
-            occupied.append((pos, 0.25))
-            cloth = mats.add(*_two_tone(rng, rng.uniform(0, 1), 0.6, 0.6, 0.3), 0.6, gain=1.2)
-            skin = mats.add(*_two_tone(rng, 0.07, 0.45, 0.75, 0.1), 0.5, gain=1.0)
-            height = rng.uniform(1.55, 1.9)
-            body = lathe_mesh([0.16, 0.22, 0.2, 0.12], [0.0, 0.9, height - 0.3, height - 0.22], cloth, segments=12)
-            head = sphere_mesh(0.12, skin, rings=8, segments=12).transformed(np.eye(3), [0, 0, height - 0.12])
-            add("pedestrian", concat_meshes([body, head]).transformed(np.eye(3), [pos[0], pos[1], 0.12]))
-    return SceneContent(
-        kind="outdoor", categories=list(OUTDOOR_CATEGORIES), objects=objects, materials=mats,
-        lighting=Lighting(0.45, 0.12, np.array([_unit([0.45, 0.75, 0.48]), _unit([-0.5, -0.3, 0.3])]),
-                          np.array([0.55, 0.12])),
-        confusable=OUTDOOR_CONFUSABLE, scene_box_type="unbounded",
-        aabb=np.array([[-SIDEWALK_END - 16, STREET_START, -0.5], [SIDEWALK_END + 16, STREET_END + 12, 40.0]]),
-        sky_category=cat_of["sky"], depth_unit_scale_factor=1e-2,
-    )
 
 
 # --------------------------------------------------------------------------------------------- ray casting
@@ -928,6 +566,18 @@ class RayCaster:
             normals[smooth] = nrm
         return Hits(hit, t, segment, category, idx, points, normals, self.tri_material[tri], np.abs(dot))
 
+    def distance(self, points: np.ndarray) -> np.ndarray:
+        """``[N]`` unsigned distance (metres) from ``points`` ``[N, 3]`` to the nearest surface."""
+        o3d = self._o3d
+        q = o3d.core.Tensor(np.asarray(points, np.float32).reshape(-1, 3))
+        return self.scene.compute_distance(q).numpy().astype(np.float64)
+
+    def closest_points(self, points: np.ndarray) -> np.ndarray:
+        """``[N, 3]`` nearest surface point to each of ``points`` ``[N, 3]``."""
+        o3d = self._o3d
+        q = o3d.core.Tensor(np.asarray(points, np.float32).reshape(-1, 3))
+        return self.scene.compute_closest_points(q)["points"].numpy().astype(np.float64)
+
     def shade(self, hits: Hits, directions: np.ndarray, pixel_angle: float) -> np.ndarray:
         """Lambertian colour ``[N, 3]`` in [0, 1]; misses get the sky (or black where there is none).
 
@@ -939,11 +589,7 @@ class RayCaster:
             footprint = 0.4 * hits.t[hits.index] * pixel_angle / np.maximum(hits.cosine, 0.25)
             albedo = solid_texture(hits.points, hits.material, self.materials, footprint=footprint,
                                    wave_norm=self.wave_norm, grid_norm=self.grid_norm)
-            light = self.content.lighting
-            n = hits.normals
-            shade = light.ambient + light.hemisphere * n[:, 2]
-            shade += np.maximum(n @ light.directions.T, 0.0) @ light.weights
-            rgb[hits.index] = albedo * shade[:, None]
+            rgb[hits.index] = albedo * self.content.lighting.shade(hits.normals)
         if self.content.sky_category is not None and len(hits.index) < len(hits.t):
             miss = ~hits.hit
             rgb[miss] = sky_color(directions[miss])

@@ -1,14 +1,18 @@
 """``make_scene``: build a synthetic scene, place cameras, ray cast every view, simulate the 2D segmenter and
-write the scene folder (DESIGN.md section 1).
+the sensors, and write the scene folder (DESIGN.md section 1).
 
-Random streams are separate and seeded from ``seed`` alone, so a scene is reproducible byte for byte and the
-noise level does not change the geometry, cameras or images (``moderate`` and ``hard`` scenes of one seed
-differ only in their pseudo-labels):
+Random streams are separate and seeded from ``seed`` alone, so a scene is reproducible byte for byte and each
+option changes only what it is about (a ``moderate`` and a ``view-correlated`` scene of one seed differ only in
+their pseudo-labels; ``--depth`` changes only the depth maps; ``--pose-noise`` only the written poses):
 
-* layout (room, objects, street) ``SeedSequence([seed, 0, kind])``,
-* cameras ``SeedSequence([seed, 1, kind])``,
+* layout (room or street, objects, textures, lighting) ``SeedSequence([seed, 0, kind])``,
+* cameras (path choice under ``auto``, field of view, the path) ``SeedSequence([seed, 1, kind])``,
 * the segmenter of frame ``i`` ``SeedSequence([seed, 2, kind, i])`` — one stream per frame, which is what
-  makes the errors independent across views.
+  makes the independent errors independent across views,
+* the view-correlated confusers ``SeedSequence([seed, 3, kind])`` and their per-frame draws
+  ``SeedSequence([seed, 4, kind, i])``,
+* the depth sensor of frame ``i`` ``SeedSequence([seed, 5, kind, i])``,
+* the pose noise ``SeedSequence([seed, 6, kind])``.
 """
 
 from __future__ import annotations
@@ -16,34 +20,42 @@ from __future__ import annotations
 import json
 import shutil
 import time
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 
-from lift3d.data.cameras import Cameras, look_at
+from lift3d.data.cameras import Cameras
 from lift3d.data.scene import Segment, SceneWriter
 from lift3d.errors import InputError
-from lift3d.synth.geometry import (
-    GRASS_END,
-    RayCaster,
-    SceneContent,
-    build_indoor,
-    build_outdoor,
-)
-from lift3d.synth.noise import PRESETS, NoiseConfig, NoiseStats, noise_config, simulate_segmenter
+from lift3d.synth.cameras import MIN_CLEARANCE, PATHS, PATHS_OF_KIND
+from lift3d.synth.cameras import camera_path as plan_camera_path
+from lift3d.synth.geometry import RayCaster, SceneContent
+from lift3d.synth.indoor import build_indoor
+from lift3d.synth.noise import PRESETS, NoiseConfig, NoiseStats, ViewConfusers, noise_config, simulate_segmenter
+from lift3d.synth.outdoor import build_outdoor
+from lift3d.synth.sensors import DEPTH_MODES, DepthSensor, perturb_poses, pose_error
 from lift3d.utils.atomic import write_json_atomic
 from lift3d.utils.progress import progress_bar
 
 KINDS = ("indoor", "outdoor")
+#: ``--camera-path`` choices.
+CAMERA_PATHS = ("auto",) + PATHS
 #: Marker in transforms.json: a folder holding it may be overwritten by a new ``lift3d synth`` run.
 SYNTH_META_KEY = "lift3d_synth"
+#: Version of what ``lift3d synth`` writes (2: scene variety, camera paths, sensor depth, pose noise,
+#: view-correlated noise, disjoint val/test splits).
+SYNTH_VERSION = 2
 #: What ``make_scene`` writes, and so what it may remove when it overwrites an earlier synthetic scene.
 _OWNED = ("images", "panoptic", "gt", "depth", "transforms.json", "panoptic.json", "synth_noise.json")
 #: Rotated-grid supersampling offsets (pixels from the centre): anti-aliased colour with 4 rays per pixel.
 _SUBPIXEL = np.array([[-0.125, -0.375], [0.375, -0.125], [0.125, 0.375], [-0.375, 0.125]])
+#: Options that override a ``--noise`` preset's field, and their flags (named in errors).
+NOISE_FLAGS = {"view_confusion": "--view-confusion", "score_informativeness": "--score-informativeness"}
 
 
-def _check_args(out, kind, seed, noise, n_views, width, height) -> NoiseConfig:
+def _check_args(out, kind, seed, noise, n_views, width, height, camera_path_name, depth, pose_noise,
+                overrides) -> NoiseConfig:
     if not isinstance(seed, (int, np.integer)) or not 0 <= seed < 2**63:
         raise InputError("--seed", f"must be a non-negative integer, got {seed!r}")
     if kind not in KINDS:
@@ -52,6 +64,26 @@ def _check_args(out, kind, seed, noise, n_views, width, height) -> NoiseConfig:
         cfg = noise_config(noise)
     except KeyError:
         raise InputError("--noise", f"{noise!r} is not one of {', '.join(PRESETS)}") from None
+    for name, value in overrides.items():
+        if value is not None:
+            if not isinstance(value, (int, float, np.floating)) or not 0.0 <= float(value) <= 1.0:
+                raise InputError(NOISE_FLAGS[name], f"must be a number in [0, 1], got {value!r}")
+    cfg = replace(cfg, **{k: float(v) for k, v in overrides.items() if v is not None})
+    for field_name, problem in cfg.problems():
+        raise InputError(NOISE_FLAGS.get(field_name, f"--noise ({field_name})"), problem)
+    if camera_path_name not in CAMERA_PATHS:
+        raise InputError("--camera-path", f"{camera_path_name!r} is not one of {', '.join(CAMERA_PATHS)}")
+    if camera_path_name != "auto" and camera_path_name not in PATHS_OF_KIND[kind]:
+        raise InputError("--camera-path", f"{camera_path_name!r} needs a room; {kind} scenes take "
+                                          f"{', '.join(('auto',) + PATHS_OF_KIND[kind])}")
+    if depth not in DEPTH_MODES:
+        raise InputError("--depth", f"{depth!r} is not one of {', '.join(DEPTH_MODES)}")
+    try:
+        deg, cm = (float(x) for x in pose_noise)
+    except (TypeError, ValueError):
+        raise InputError("--pose-noise", f"needs two numbers DEG CM, got {pose_noise!r}") from None
+    if not (0.0 <= deg <= 90.0 and 0.0 <= cm <= 200.0):
+        raise InputError("--pose-noise", f"DEG must be in [0, 90] and CM in [0, 200], got {deg:g} {cm:g}")
     if not isinstance(n_views, (int, np.integer)) or n_views < 2:
         raise InputError("--views", f"need at least 2 views (one to train on, one to test), got {n_views}")
     if n_views > 10000:
@@ -82,64 +114,36 @@ def _intrinsics(width: int, height: int, hfov_deg: float) -> tuple[float, float,
     return fx, fx, width / 2.0, height / 2.0
 
 
-def indoor_cameras(content: SceneContent, n_views: int, rng: np.random.Generator) -> np.ndarray:
-    """``[n, 4, 4]`` OpenGL camera-to-world matrices circling the room's middle, at varied heights, looking at
-    the furniture (an object's centre or a point near the room's centre)."""
-    (x0, y0, _), (x1, y1, z1) = content.aabb
-    hx, hy = (x1 - x0) / 2, (y1 - y0) / 2
-    things = content.things
-    c2ws = []
-    for k in range(n_views):
-        # Free floor positions (out of the furniture: a camera inside an object would see only its inside);
-        # keep the one closest to this view's place on an ellipse around the room's middle, so consecutive
-        # views circle the room like a video.
-        cand = np.column_stack([rng.uniform(-1, 1, 400) * (hx - 0.35), rng.uniform(-1, 1, 400) * (hy - 0.35)])
-        free = np.ones(len(cand), bool)
-        for c, r in content.footprints:
-            free &= np.linalg.norm(cand - c, axis=1) > r + 0.35
-        if not free.any():
-            raise RuntimeError("no free camera position found in the room")
-        cand = cand[free]
-        base = 2 * np.pi * k / n_views + rng.uniform(-0.15, 0.15)
-        radius = rng.uniform(0.55, 0.85)
-        goal = np.array([radius * (hx - 0.35) * np.cos(base), radius * (hy - 0.35) * np.sin(base)])
-        xy = cand[np.argmin(np.linalg.norm(cand - goal, axis=1))]
-        eye = np.array([xy[0], xy[1], rng.uniform(0.9, min(2.2, z1 - 0.4))])
-        if rng.random() < 0.5 and things:
-            obj = things[int(rng.integers(len(things)))]
-            lo, hi = obj.mesh.bounds
-            target = (lo + hi) / 2
-        else:
-            target = np.array([rng.uniform(-0.3, 0.3) * hx, rng.uniform(-0.3, 0.3) * hy, rng.uniform(0.2, 0.9)])
-        if np.linalg.norm((target - eye)[:2]) < 1.0:  # too close to frame it: look across the room instead
-            target = np.array([0.0, 0.0, 0.5]) - 0.5 * np.append(eye[:2], 0.0)
-        c2ws.append(look_at(eye, target))
-    return np.stack(c2ws)
-
-
-def outdoor_cameras(n_views: int, rng: np.random.Generator, path_length: float = 6.0) -> np.ndarray:
-    """``[n, 4, 4]`` camera-to-world matrices driving forward (+y) down the street for ``path_length`` metres,
-    at eye height, with a gentle lateral weave and small yaw/pitch changes (so views are not all collinear)."""
-    c2ws = []
-    phase = rng.uniform(0, 2 * np.pi)
-    for k in range(n_views):
-        s = k / max(n_views - 1, 1)
-        eye = np.array([-0.3 + 0.5 * np.sin(2 * np.pi * s + phase), path_length * s,
-                        1.6 + 0.08 * np.sin(4 * np.pi * s + phase)])
-        yaw = np.radians(8.0) * np.sin(2 * np.pi * 1.5 * s + phase) + np.radians(rng.uniform(-1.5, 1.5))
-        pitch = np.radians(1.0 + rng.uniform(-1.5, 1.5))  # horizon a little below the image centre
-        fwd = np.array([np.sin(yaw) * np.cos(pitch), np.cos(yaw) * np.cos(pitch), np.sin(pitch)])
-        c2ws.append(look_at(eye, eye + fwd))
-    return np.stack(c2ws)
-
-
 def split_names(names: list[str]) -> dict[str, list[str]]:
-    """Every 8th view (from the 5th) is a test view, held out from training; every other test view is also
-    a validation view. With fewer than 5 views the last view is the test view."""
+    """The synthetic scenes' splits: ``test`` and ``val`` are disjoint from each other and from ``train``.
+
+    * **test**: ``round(n / 5)`` views (12 of 60), evenly spread along the path — view ``floor((k + 0.5) n /
+      n_test)`` for ``k = 0 … n_test − 1`` (views 2, 7, 12, …, 57 of 60), never two neighbours;
+    * **val**: ``n // 12`` views (5 of 60) half-way between two test views (views 5, 15, 30, 45, 55 of 60), so
+      neither a test view nor its neighbour;
+    * **train**: the rest (43 of 60).
+
+    Below 12 views there is no view to spare: ``val`` is then one training view (the middle one), still
+    never a test view.
+
+    Examples
+    --------
+    >>> s = split_names([f"f{i}" for i in range(60)])
+    >>> len(s["train"]), len(s["val"]), len(s["test"]), s["test"][:3], s["val"]
+    (43, 5, 12, ['f2', 'f7', 'f12'], ['f5', 'f15', 'f30', 'f45', 'f55'])
+    """
     n = len(names)
-    test = [i for i in range(n) if i % 8 == 4] or [n - 1]
-    val = test[::2]
-    train = [i for i in range(n) if i not in set(test)]
+    n_test = max(1, round(n / 5))
+    test = sorted({int((k + 0.5) * n / n_test) for k in range(n_test)})
+    gaps = [int((k + 1) * n / n_test) for k in range(n_test - 1)]
+    gaps = [g for g in gaps if g not in test]
+    n_val = n // 12
+    if n_val and gaps:
+        val = sorted({gaps[int(round(x))] for x in np.linspace(0, len(gaps) - 1, min(n_val, len(gaps)))})
+        train = [i for i in range(n) if i not in set(test) | set(val)]
+    else:
+        train = [i for i in range(n) if i not in set(test)]
+        val = [train[len(train) // 2]]
     return {"train": [names[i] for i in train], "val": [names[i] for i in val], "test": [names[i] for i in test]}
 
 
@@ -214,6 +218,50 @@ def voxel_dedup(points: np.ndarray, voxel: float) -> np.ndarray:
     return np.sort(first)
 
 
+def surface_samples(caster: RayCaster, cameras: Cameras, grid: int = 16) -> dict[int, np.ndarray]:
+    """What the cameras see, sparsely: GT segment id → ``[P, 3]`` surface points hit by a ``grid`` × ``grid``
+    of pixel rays in every view."""
+    out: dict[int, list] = {}
+    for i in range(len(cameras)):
+        w, h = float(cameras.width[i]), float(cameras.height[i])
+        u, v = np.meshgrid((np.arange(grid) + 0.5) * w / grid, (np.arange(grid) + 0.5) * h / grid)
+        o, d = cameras.rays(i, u.ravel(), v.ravel())
+        hits = caster.cast(o, d)
+        seg = hits.segment[hits.index]
+        for s in np.unique(seg):
+            out.setdefault(int(s), []).append(hits.points[seg == s])
+    return {s: np.concatenate(v) for s, v in out.items()}
+
+
+def in_view(cameras: Cameras, points: np.ndarray) -> np.ndarray:
+    """``[M, N]`` bool: which of the ``N`` cameras have each of ``points`` ``[M, 3]`` in their image (in front
+    of the camera and inside the frame; occlusion is not checked)."""
+    out = np.zeros((len(points), len(cameras)), bool)
+    for i in range(len(cameras)):
+        uv, z = cameras.project(i, points)
+        out[:, i] = (z > 0) & (uv[:, 0] >= 0) & (uv[:, 0] < cameras.width[i]) & (uv[:, 1] >= 0) & \
+            (uv[:, 1] < cameras.height[i])
+    return out
+
+
+def _check_pose_noise(true_c2w: np.ndarray, noisy_c2w: np.ndarray, caster: RayCaster, names: list[str],
+                      deg: float, cm: float) -> None:
+    """A written camera must stay in free space: the segment from its true to its noisy centre crosses no
+    surface and ends at least 2 cm in front of one."""
+    offset = noisy_c2w[:, :3, 3] - true_c2w[:, :3, 3]
+    dist = np.linalg.norm(offset, axis=1)
+    moved = np.flatnonzero(dist > 1e-9)
+    if not len(moved):
+        return
+    hits = caster.cast(true_c2w[moved, :3, 3], offset[moved] / dist[moved, None])
+    bad = np.flatnonzero(hits.t < dist[moved] + 0.02)
+    if len(bad):
+        k = int(moved[bad[0]])
+        raise InputError("--pose-noise", f"{deg:g} deg {cm:g} cm puts the written camera of {names[k]} inside or "
+                                         f"behind geometry ({len(bad)} of {len(dist)} cameras): use less "
+                                         "translation noise")
+
+
 # --------------------------------------------------------------------------------------------- main
 def make_scene(
     out: str | Path,
@@ -224,8 +272,17 @@ def make_scene(
     width: int = 128,
     height: int = 128,
     progress: bool = True,
+    *,
+    camera_path: str = "auto",
+    depth: str = "sensor",
+    pose_noise: tuple[float, float] = (0.0, 0.0),
+    view_confusion: float | None = None,
+    score_informativeness: float | None = None,
 ) -> dict:
-    """Write a synthetic labelled scene folder with simulated 2D segmenter noise.
+    """Write a synthetic labelled scene folder with simulated 2D segmenter noise and sensor models.
+
+    Every option is recorded in ``transforms.json`` under ``lift3d_synth`` (with what the seed chose: room or
+    street, textures, lighting, objects), so a scene says how it was made.
 
     Parameters
     ----------
@@ -235,49 +292,82 @@ def make_scene(
     kind : {"indoor", "outdoor"}
         A furnished room (bounded) or a long street with sky (unbounded).
     seed : int
-        Seed of everything random; the same arguments give the same bytes.
-    noise : {"clean", "moderate", "hard"} or NoiseConfig
-        Error rates of the simulated segmenter (``docs/synth.md``).
+        Seed of everything random (the room, its objects, textures, lighting, cameras and every noise); the
+        same arguments give the same bytes.
+    noise : {"clean", "moderate", "hard", "view-correlated"} or NoiseConfig
+        The simulated segmenter's errors (``docs/synth.md``).
     n_views : int
         Number of frames.
     width, height : int
         Image size in pixels.
     progress : bool
         Show a progress bar.
+    camera_path : {"auto", "orbit", "walk", "handheld"}
+        How the camera moves; ``auto`` picks one from the seed (``orbit`` is indoor only).
+    depth : {"sensor", "exact", "none"}
+        The depth maps of ``depth_file_path``: a structured-light sensor's (noise, holes, quantisation), the
+        exact ones, or none (images only). The exact depth is always written as ground truth
+        (``gt_depth_file_path``).
+    pose_noise : (float, float)
+        RMS rotation (degrees) and translation (centimetres) noise of the written poses; rendering uses the
+        true ones (``gt_transform_matrix``).
+    view_confusion : float, optional
+        Share of things and stuff patches with an active view-correlated confuser (default: the preset's).
+    score_informativeness : float, optional
+        How much segment scores say about correctness, 0-1 (default: the preset's).
 
     Returns
     -------
     dict
-        A report: arguments, content (object counts, extent), noise statistics (also written to
-        ``<out>/synth_noise.json``), pseudo-label mIoU, paths, and wall time in seconds.
+        A report: options, content, noise statistics (also written to ``<out>/synth_noise.json``), the
+        pseudo-labels' metrics on the test views, depth and pose statistics, paths, and wall time in seconds.
 
     Examples
     --------
     >>> import tempfile
     >>> rep = make_scene(tempfile.mkdtemp() + "/s", n_views=4, width=32, height=32, progress=False)
-    >>> rep["n_views"], rep["noise"]["name"]
-    (4, 'moderate')
+    >>> rep["n_views"], rep["noise"]["name"], rep["depth"]["mode"]
+    (4, 'moderate', 'sensor')
     """
     started = time.perf_counter()
-    cfg = _check_args(out, kind, seed, noise, n_views, width, height)
+    overrides = {"view_confusion": view_confusion, "score_informativeness": score_informativeness}
+    cfg = _check_args(out, kind, seed, noise, n_views, width, height, camera_path, depth, pose_noise, overrides)
     n_views, width, height, seed = int(n_views), int(width), int(height), int(seed)
+    deg, cm = (float(x) for x in pose_noise)
     out = Path(out)
     kind_code = KINDS.index(kind)
-    layout_rng = np.random.default_rng(np.random.SeedSequence([seed, 0, kind_code]))
-    camera_rng = np.random.default_rng(np.random.SeedSequence([seed, 1, kind_code]))
 
-    content = build_indoor(layout_rng) if kind == "indoor" else build_outdoor(layout_rng)
-    if kind == "indoor":
-        c2w = indoor_cameras(content, n_views, camera_rng)
-        fx, fy, cx, cy = _intrinsics(width, height, 70.0)
-    else:
-        c2w = outdoor_cameras(n_views, camera_rng)
-        fx, fy, cx, cy = _intrinsics(width, height, 75.0)
-    cameras = Cameras(c2w=c2w, fx=fx, fy=fy, cx=cx, cy=cy, width=width, height=height)
+    def stream(*keys: int) -> np.random.Generator:
+        return np.random.default_rng(np.random.SeedSequence([seed, keys[0], kind_code, *keys[1:]]))
+
+    content: SceneContent = build_indoor(stream(0)) if kind == "indoor" else build_outdoor(stream(0))
     caster = RayCaster(content)
+    camera_rng = stream(1)
+    paths = PATHS_OF_KIND[kind]
+    chosen = paths[int(camera_rng.integers(len(paths)))]  # drawn always, so `auto` and explicit agree
+    path_name = chosen if camera_path == "auto" else camera_path
+    hfov = float(camera_rng.uniform(60.0, 80.0) if kind == "indoor" else camera_rng.uniform(65.0, 85.0))
+    c2w = plan_camera_path(content, caster, path_name, n_views, camera_rng)
+    fx, fy, cx, cy = _intrinsics(width, height, hfov)
+    cameras = Cameras(c2w=c2w, fx=fx, fy=fy, cx=cx, cy=cy, width=width, height=height)
+    names = [f"frame_{i:04d}" for i in range(n_views)]
+
+    written_c2w = c2w
+    if deg > 0 or cm > 0:
+        written_c2w = perturb_poses(c2w, deg, cm, stream(6))
+        _check_pose_noise(c2w, written_c2w, caster, names, deg, cm)
+    rot_err, trans_err = pose_error(c2w, written_c2w)
+
     gt_category = {o.segment_id: o.category_id for o in content.objects}
     if content.sky_category is not None:
         gt_category[content.sky_category] = content.sky_category
+    stuff_ids = {c.id for c in content.categories if not c.isthing}
+    seen = surface_samples(caster, cameras)
+    confusers = ViewConfusers.build(
+        [(o.segment_id, o.category_id, o.mesh.bounds.mean(axis=0)) for o in content.things],
+        {s: p for s, p in seen.items() if s in stuff_ids}, lambda pts: in_view(cameras, pts), cameras.centers,
+        content.confusable, cfg, stream(3), patch_radius=(0.3, 0.8) if kind == "indoor" else (2.0, 5.0))
+    sensor = DepthSensor()
 
     if out.is_dir():  # an earlier synthetic scene (checked above): remove only what make_scene writes
         for name in _OWNED:
@@ -287,47 +377,78 @@ def make_scene(
             elif p.exists():
                 p.unlink()
 
-    meta = {SYNTH_META_KEY: {"kind": kind, "seed": seed, "noise": cfg.name, "n_views": n_views,
-                             "width": width, "height": height}}
+    splits = split_names(names)
+    test_names = set(splits["test"])
+    options = {
+        "version": SYNTH_VERSION, "kind": kind, "seed": seed, "n_views": n_views, "width": width, "height": height,
+        "noise": cfg.name, "noise_config": cfg.to_json(),
+        "view_confusion": cfg.view_confusion, "score_informativeness": cfg.score_informativeness,
+        "camera_path": path_name, "camera_path_option": camera_path, "hfov_deg": round(hfov, 3),
+        "min_camera_clearance_m": MIN_CLEARANCE,
+        "depth": depth, "depth_sensor": sensor.to_json() if depth == "sensor" else None,
+        "pose_noise": {"deg": deg, "cm": cm, "rms_deg": round(float(np.sqrt(np.mean(rot_err**2))), 4),
+                       "rms_cm": round(float(100 * np.sqrt(np.mean(trans_err**2))), 4)},
+        "splits": "test: every 5th view spread along the path; val: n // 12 views between test views, disjoint "
+                  "from train and test (below 12 views one train view); train: the rest",
+        "scene": content.description,
+    }
     stats = NoiseStats(content.categories)
     pts, pt_sem, pt_inst, pt_rgb = [], [], [], []
-    names: list[str] = []
     seen_segments: set[int] = set()
     thing_ids = {c.id for c in content.categories if c.isthing}
+    test_arrays: list[tuple[np.ndarray, ...]] = []
+    depth_stats: list[dict] = []
     with SceneWriter(out, content.categories, depth_unit_scale_factor=content.depth_unit_scale_factor,
-                     extra_meta=meta) as writer:
+                     extra_meta={SYNTH_META_KEY: options}) as writer:
         for i in progress_bar(range(n_views), desc=f"synth {kind}", disable=not progress, unit="view"):
             view = render_view(caster, cameras, i)
             seg = view["segment"]
-            frame_rng = np.random.default_rng(np.random.SeedSequence([seed, 2, kind_code, i]))
-            pseudo = simulate_segmenter(seg, gt_category, content.categories, content.confusable, cfg, frame_rng)
+            xyz = np.full((height * width, 3), np.nan)
+            xyz[view["hit"].ravel()] = view["points"]
+            view_errors = confusers.for_view(seg, view["category"], xyz.reshape(height, width, 3),
+                                             cameras.centers[i], stream(4, i))
+            pseudo = simulate_segmenter(seg, gt_category, content.categories, content.confusable, cfg, stream(2, i),
+                                        view_errors=view_errors)
             present = [int(s) for s in np.unique(seg) if s != 0]
             seen_segments.update(present)
             gt_segments = [Segment(s, gt_category[s], 1.0) for s in present]
             pseudo_sem = np.zeros(seg.shape, np.int64)
+            pseudo_thing = np.zeros(seg.shape, bool)
             for s in pseudo.segments:
-                pseudo_sem[pseudo.panoptic == s.id] = s.category_id
+                on = pseudo.panoptic == s.id
+                pseudo_sem[on] = s.category_id
+                pseudo_thing[on] = s.category_id in thing_ids
             stats.add(pseudo.counts, view["category"], pseudo_sem)
-            name = f"frame_{i:04d}"
-            names.append(writer.add_frame(
-                name, view["rgb"], c2w[i], (fx, fy, cx, cy), panoptic=pseudo.panoptic, segments=pseudo.segments,
-                gt_panoptic=seg, gt_segments=gt_segments, depth=view["depth"],
-            ))
+            if depth == "sensor":
+                depth_in, info = sensor.apply(view["depth"], stream(5, i))
+                depth_stats.append(info)
+            else:
+                depth_in = view["depth"] if depth == "exact" else None
+            name = names[i]
+            writer.add_frame(
+                name, view["rgb"], written_c2w[i], (fx, fy, cx, cy), panoptic=pseudo.panoptic,
+                segments=pseudo.segments, gt_panoptic=seg, gt_segments=gt_segments, depth=depth_in,
+                gt_depth=view["depth"], gt_c2w=c2w[i],
+            )
             hit = view["hit"]
+            gt_inst = np.where(np.isin(view["category"], list(thing_ids)), seg, 0)
+            if name in test_names:
+                test_arrays.append((pseudo_sem, np.where(pseudo_thing, pseudo.panoptic, 0), view["category"], gt_inst))
             pts.append(view["points"])
             pt_sem.append(view["category"][hit])
-            pt_inst.append(np.where(np.isin(view["category"][hit], list(thing_ids)), seg[hit], 0))
+            pt_inst.append(gt_inst[hit])
             pt_rgb.append(view["point_rgb"])
 
-        splits = split_names(names)
-        writer.set_splits(splits["train"], splits["val"], splits["test"])
-        centres = cameras.centers
+        file_paths = {n: f"images/{n}.png" for n in names}
+        writer.set_splits(*([file_paths[n] for n in splits[s]] for s in ("train", "val", "test")))
+        centres = np.concatenate([cameras.centers, written_c2w[:, :3, 3]])
         if content.scene_box_type == "bounded":
             scene_box = content.aabb + np.array([[-0.01] * 3, [0.01] * 3])
         else:
             # Foreground box: the near street around the camera path; everything beyond is contracted.
             lo, hi = centres.min(0), centres.max(0)
-            scene_box = np.array([[-GRASS_END - 3.0, lo[1] - 4.0, -0.5], [GRASS_END + 3.0, hi[1] + 16.0, 8.0]])
+            half = content.description["street"]["grass_end_m"] + 3.0
+            scene_box = np.array([[-half, lo[1] - 4.0, -0.5], [half, hi[1] + 16.0, 8.0]])
         writer.set_scene_box(content.scene_box_type, scene_box)
 
         xyz = np.concatenate(pts)
@@ -342,26 +463,38 @@ def make_scene(
                                rgb=np.concatenate(pt_rgb)[keep])
 
     summary = stats.summary()
-    baseline = float(np.max(np.linalg.norm(centres[:, None] - centres[None], axis=-1)))
+    test_metrics = _pseudo_label_metrics(test_arrays, content)
+    baseline = float(np.max(np.linalg.norm(cameras.centers[:, None] - cameras.centers[None], axis=-1)))
     gt_xyz = xyz[keep]
     extent = float(np.linalg.norm(gt_xyz.max(0) - gt_xyz.min(0))) if len(gt_xyz) else 0.0
     cats = {c.id: c for c in content.categories}
     things = content.things
+    clearance = caster.distance(cameras.centers)
+    depth_report = {"mode": depth}
+    if depth_stats:
+        depth_report.update({k: round(float(np.mean([d[k] for d in depth_stats])), 4) for k in depth_stats[0]})
     noise_json = {
         "kind": kind, "seed": seed, "n_views": n_views, "width": width, "height": height,
-        "config": cfg.to_json(), **summary,
+        "config": cfg.to_json(), **summary, "test_views": test_metrics,
+        "view_confusers": confusers.to_json(),
     }
     write_json_atomic(out / "synth_noise.json", noise_json)
     return {
         "out": str(out), "kind": kind, "seed": seed, "n_views": n_views, "width": width, "height": height,
-        "noise": {"name": cfg.name, **summary},
+        "options": {k: options[k] for k in ("camera_path", "camera_path_option", "hfov_deg", "depth",
+                                            "view_confusion", "score_informativeness")},
+        "noise": {"name": cfg.name, **summary, "test_views": test_metrics},
+        "depth": depth_report,
+        "pose_noise": options["pose_noise"],
         "content": {
+            "scene": content.description,
             "n_things": len(things),
             "thing_classes": sorted({cats[o.category_id].name for o in things}),
             "n_thing_classes": len({o.category_id for o in things}),
             "segments_seen": len(seen_segments),
             "extent_m": round(extent, 3),
             "camera_baseline_m": round(baseline, 3),
+            "camera_clearance_m": [round(float(clearance.min()), 3), round(float(np.median(clearance)), 3)],
             "extent_over_baseline": round(extent / baseline, 2) if baseline > 0 else None,
             "scene_box": {"type": content.scene_box_type, "aabb": np.round(scene_box, 4).tolist()},
             "gt_points": int(len(keep)),
@@ -374,3 +507,17 @@ def make_scene(
         },
         "seconds": round(time.perf_counter() - started, 3),
     }
+
+
+def _pseudo_label_metrics(arrays: list[tuple[np.ndarray, ...]], content: SceneContent) -> dict:
+    """mIoU and PQ^scene of the pseudo-labels on the test views, as ``lift3d eval`` scores its baseline."""
+    from lift3d.eval import compute_2d_metrics
+
+    if not arrays:
+        return {}
+    ps, pi, gs, gi = (np.concatenate([a[k].ravel() for a in arrays]) for k in range(4))
+    things = [c.id for c in content.categories if c.isthing]
+    stuff = [c.id for c in content.categories if not c.isthing]
+    m = compute_2d_metrics((ps, pi), (gs, gi), things, stuff)
+    return {k: (None if m[k] is None or not np.isfinite(m[k]) else round(float(m[k]), 4))
+            for k in ("miou", "pq_scene", "sq_scene", "rq_scene", "miou_strict", "pq_scene_strict")}

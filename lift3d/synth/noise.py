@@ -1,9 +1,20 @@
 """A simulated 2D panoptic segmenter: ground-truth panoptic maps in, noisy per-frame pseudo-labels out.
 
-Real 2D segmenters (Mask2Former and the like) make errors that are *independent across frames*: each frame is
-segmented on its own, with its own segment ids. That is what lifting to 3D exploits, so the simulation corrupts
-every frame with its own random stream and never reuses ids. The error kinds, applied in this order to each
-frame (rates per preset in :data:`PRESETS`; ``docs/synth.md`` documents them):
+Real 2D segmenters (Mask2Former and the like) segment each frame on its own, with their own segment ids, and
+make two sorts of mistakes: *independent* ones that change from frame to frame, and *view-correlated* ones
+that repeat whenever an object is seen from a similar direction (a cabinet read as a table from one side).
+Lifting to 3D averages out the first sort; the second sort is what makes it hard. The simulation does both:
+
+0. **view-correlated confusion** (:class:`ViewConfusers`, optional) — each GT thing, and each of a few patches
+   of every stuff surface, has a persistent *confuser* (a plausible wrong class) that wins when the object is
+   seen from a range of directions: a cone around an axis. The axis points at one of the cameras that have the
+   object in view, and the cone's half-angle is chosen so that it holds a share ``view_share`` of those
+   cameras. With probability ``view_confusion`` the confuser is active; an active confuser then wins in a frame
+   (with probability ``view_win``) whenever the direction from the object (or patch centre) to the camera lies
+   inside the cone — in the same frames every time, whatever the rest of the noise;
+
+then, with every frame's own random stream (independent across frames; rates per preset in
+:data:`PRESETS`; ``docs/synth.md`` documents them):
 
 1. **missed instances** — a visible thing is not detected; its pixels become void or are absorbed by the
    surrounding stuff (nearest stuff pixel);
@@ -16,14 +27,18 @@ frame (rates per preset in :data:`PRESETS`; ``docs/synth.md`` documents them):
 6. **abstention** — a void ring along some segment boundaries and a few void blobs;
 7. **spurious segments** — small ellipses labelled as a random thing class.
 
-Every output segment gets a ``score``: segments hit by an error of kind 2-4 or 7, or whose overlap with their
-ground truth fell under IoU 0.5, draw from ``score_corrupt``; the others from ``score_correct`` (so the score
-correlates with correctness, as a calibrated segmenter's would). Ids are random in [1, 65535] per frame.
+Every output segment gets a ``score``. Segments hit by an error of kind 0, 2-4 or 7, or whose overlap with
+their ground truth fell under IoU 0.5, are *corrupted*. With probability ``score_informativeness`` a segment's
+score is *informed*: drawn from ``score_corrupt`` if it is corrupted and from ``score_correct`` otherwise;
+else it is drawn from the range spanning both, whatever the segment's correctness (0: the scores say nothing
+about correctness; 1: they separate correct from corrupted segments as a calibrated segmenter's would).
+Ids are random in [1, 65535] per frame.
 """
 
 from __future__ import annotations
 
 from dataclasses import asdict, dataclass, field, replace
+from typing import Callable
 
 import cv2
 import numpy as np
@@ -69,6 +84,16 @@ class NoiseConfig:
         Smallest thing (pixels) that may be split.
     score_correct, score_corrupt : tuple of float
         Uniform score ranges of correct and corrupted segments.
+    view_confusion : float
+        Share of GT things and stuff patches whose view-correlated confuser is active (0 = none).
+    view_share : float
+        Share of the views of an object (the cameras that have it in view) that lie in its confuser's cone.
+    view_win : float
+        Probability that an active confuser wins in a frame viewed from inside its cone.
+    view_stuff_patches : int
+        Patches per stuff class, each with its own confuser.
+    score_informativeness : float
+        Share of segments whose score depends on their correctness (see the module docstring).
     """
 
     name: str = "custom"
@@ -85,23 +110,61 @@ class NoiseConfig:
     min_split_area: int = 60
     score_correct: tuple[float, float] = (0.7, 1.0)
     score_corrupt: tuple[float, float] = (0.3, 0.8)
+    view_confusion: float = 0.0
+    view_share: float = 0.4
+    view_win: float = 0.9
+    view_stuff_patches: int = 4
+    score_informativeness: float = 1.0
 
     def to_json(self) -> dict:
         return asdict(self)
 
+    def problems(self) -> list[tuple[str, str]]:
+        """``(field, problem)`` for every value out of its range (empty when the configuration is valid).
 
-#: ``--noise`` presets. ``moderate`` is meant to resemble a decent off-the-shelf segmenter on unseen data;
-#: ``hard`` doubles every rate (and the boundary shift); ``clean`` is the ground truth under per-frame ids.
+        Examples
+        --------
+        >>> NoiseConfig(p_miss=-0.1, view_share=0).problems()
+        [('p_miss', 'must be in [0, 1], got -0.1'), ('view_share', 'must be in (0, 1], got 0')]
+        """
+        out = []
+        for name in ("p_miss", "p_miss_void", "p_confuse", "p_cross_kind", "p_merge", "p_split", "p_boundary_void",
+                     "view_confusion", "view_win", "score_informativeness"):
+            v = getattr(self, name)
+            if not (isinstance(v, (int, float)) and 0.0 <= v <= 1.0):
+                out.append((name, f"must be in [0, 1], got {v!r}"))
+        for name in ("boundary_px", "abstain_blobs_per_frame", "spurious_per_frame", "min_split_area",
+                     "view_stuff_patches"):
+            v = getattr(self, name)
+            if not (isinstance(v, (int, float)) and 0.0 <= v < 1e6):
+                out.append((name, f"must be a non-negative number, got {v!r}"))
+        if not (isinstance(self.view_share, (int, float)) and 0.0 < self.view_share <= 1.0):
+            out.append(("view_share", f"must be in (0, 1], got {self.view_share!r}"))
+        for name in ("score_correct", "score_corrupt"):
+            lo, hi = getattr(self, name)
+            if not 0.0 <= lo <= hi <= 1.0:
+                out.append((name, f"must be a range (lo, hi) with 0 <= lo <= hi <= 1, got {(lo, hi)!r}"))
+        return out
+
+
+_MODERATE = NoiseConfig(
+    "moderate", p_miss=0.08, p_confuse=0.10, p_merge=0.25, p_split=0.05, boundary_px=1.0,
+    p_boundary_void=0.15, abstain_blobs_per_frame=0.4, spurious_per_frame=0.5,
+)
+
+#: ``--noise`` presets, from easy to hard. ``moderate`` is meant to resemble a decent off-the-shelf segmenter
+#: on unseen data if its errors were independent across views; ``hard`` doubles every rate (and the boundary
+#: shift); ``view-correlated`` is ``moderate`` plus persistent view-dependent confusions and scores that say
+#: little about correctness (the realistic setting); ``clean`` is the ground truth under per-frame ids.
 PRESETS: dict[str, NoiseConfig] = {
     "clean": NoiseConfig("clean", score_correct=(1.0, 1.0)),
-    "moderate": NoiseConfig(
-        "moderate", p_miss=0.08, p_confuse=0.10, p_merge=0.25, p_split=0.05, boundary_px=1.0,
-        p_boundary_void=0.15, abstain_blobs_per_frame=0.4, spurious_per_frame=0.5,
-    ),
+    "moderate": _MODERATE,
     "hard": NoiseConfig(
         "hard", p_miss=0.16, p_confuse=0.20, p_merge=0.50, p_split=0.10, boundary_px=2.0,
         p_boundary_void=0.30, abstain_blobs_per_frame=0.8, spurious_per_frame=1.0,
     ),
+    "view-correlated": replace(_MODERATE, name="view-correlated", view_confusion=0.4, view_share=0.4,
+                               score_informativeness=0.3),
 }
 
 
@@ -121,6 +184,184 @@ class SegmenterOutput:
     panoptic: np.ndarray  # [H, W] int64 segment ids (0 = void), random per frame
     segments: list[Segment]
     counts: dict[str, float]
+
+
+@dataclass
+class ViewErrors:
+    """The view-correlated errors of one frame: GT thing segment id → the class it is read as, and a map of
+    stuff pixels read as another class (``[H, W]`` category ids, 0 = unchanged)."""
+
+    things: dict[int, int]
+    stuff: np.ndarray | None = None
+
+
+@dataclass
+class Confuser:
+    """A persistent, view-dependent class error of one GT thing or one patch of a stuff surface.
+
+    Attributes
+    ----------
+    segment_id : int
+        The GT thing's segment id, or the stuff category id for a patch.
+    category : int
+        The wrong class that wins.
+    centre : np.ndarray
+        ``[3]`` the object's centre (its bounding box's) or the patch's centre on the surface.
+    axis : np.ndarray
+        ``[3]`` unit vector: the confuser wins when the direction from ``centre`` to the camera is within
+        ``cone_deg`` of it.
+    cone_deg : float
+        The cone's half-angle in degrees.
+    radius : float
+        A patch's radius in metres (``inf`` for a thing: all of it).
+    draw : float
+        Uniform draw deciding whether the confuser is active (``draw < view_confusion``), so that raising
+        ``view_confusion`` only adds confusers.
+    """
+
+    segment_id: int
+    category: int
+    centre: np.ndarray
+    axis: np.ndarray
+    cone_deg: float
+    radius: float
+    draw: float
+
+    @property
+    def is_thing(self) -> bool:
+        return not np.isfinite(self.radius)
+
+    def sees(self, eye: np.ndarray) -> bool:
+        """Whether a camera at ``eye`` looks at the object from inside the cone."""
+        to_eye = np.asarray(eye, np.float64) - self.centre
+        return float(to_eye @ self.axis) >= np.cos(np.radians(self.cone_deg)) * float(np.linalg.norm(to_eye))
+
+
+class ViewConfusers:
+    """The scene's persistent view-correlated errors (error 0 of the module docstring).
+
+    Parameters
+    ----------
+    confusers : list of Confuser
+        Every candidate (active or not: ``config.view_confusion`` decides).
+    config : NoiseConfig
+        ``view_confusion`` and ``view_win``.
+    """
+
+    def __init__(self, confusers: list[Confuser], config: NoiseConfig):
+        self.confusers = confusers
+        self.config = config
+        self.active = [c.draw < config.view_confusion for c in confusers]
+
+    @classmethod
+    def build(cls, things: list[tuple[int, int, np.ndarray]], stuff_points: dict[int, np.ndarray],
+              in_view: Callable[[np.ndarray], np.ndarray], camera_centres: np.ndarray,
+              confusable: dict[int, list[int]], config: NoiseConfig, rng: np.random.Generator,
+              patch_radius: tuple[float, float] = (0.3, 0.8)) -> "ViewConfusers":
+        """Draw a confuser for every thing and ``config.view_stuff_patches`` per stuff class.
+
+        Parameters
+        ----------
+        things : list of (segment id, category id, centre [3])
+            The GT things.
+        stuff_points : dict
+            Stuff category id → ``[P, 3]`` points of its surfaces that the cameras see (patch centres are drawn
+            among them; the sky has none).
+        in_view : callable
+            ``[M, 3]`` points → ``[M, N]`` bool: which of the ``N`` cameras have each point in their field of
+            view.
+        camera_centres : np.ndarray
+            ``[N, 3]``.
+        confusable : dict
+            Category id → plausible wrong category ids (same kind).
+        config : NoiseConfig
+            ``view_share`` sets the cones; ``view_stuff_patches`` the patches per stuff class.
+        rng : np.random.Generator
+            The scene's own stream for view errors (the same draws whatever ``view_confusion``).
+        patch_radius : (float, float)
+            Range of patch radii in metres.
+        """
+        cand: list[tuple[int, int, np.ndarray, float]] = []  # segment id, wrong class, centre, radius
+        for seg, cat, centre in things:
+            pool = [c for c in confusable.get(cat, []) if c != cat]
+            if pool:
+                cand.append((int(seg), int(pool[rng.integers(len(pool))]), np.asarray(centre, np.float64), np.inf))
+        for cat in sorted(stuff_points):
+            pts = stuff_points[cat]
+            pool = [c for c in confusable.get(cat, []) if c != cat]
+            if not pool or not len(pts):
+                continue
+            for _ in range(int(config.view_stuff_patches)):
+                cand.append((int(cat), int(pool[rng.integers(len(pool))]), pts[int(rng.integers(len(pts)))],
+                             float(rng.uniform(*patch_radius))))
+        if not cand:
+            return cls([], config)
+        seen = in_view(np.stack([c[2] for c in cand]))
+        out = []
+        for (seg, wrong, centre, radius), cams in zip(cand, seen):
+            eyes = camera_centres[cams] if cams.any() else camera_centres
+            dirs = eyes - centre
+            dirs /= np.maximum(np.linalg.norm(dirs, axis=1, keepdims=True), 1e-9)
+            axis = dirs[int(rng.integers(len(dirs)))]
+            # The cone holds the share `view_share` of the views, counting from the axis outwards.
+            angles = np.degrees(np.arccos(np.clip(dirs @ axis, -1.0, 1.0)))
+            cone = float(np.quantile(angles, config.view_share)) + 1e-6 if len(angles) > 1 else 30.0
+            out.append(Confuser(seg, wrong, centre, axis, min(cone, 180.0), radius, float(rng.random())))
+        return cls(out, config)
+
+    def for_view(self, segment: np.ndarray, category: np.ndarray, xyz: np.ndarray, eye: np.ndarray,
+                 rng: np.random.Generator) -> ViewErrors:
+        """This frame's view errors.
+
+        Parameters
+        ----------
+        segment, category : np.ndarray
+            ``[H, W]`` GT segment ids and category ids.
+        xyz : np.ndarray
+            ``[H, W, 3]`` world point each pixel sees (NaN where nothing is hit).
+        eye : np.ndarray
+            ``[3]`` the camera centre (the true one).
+        rng : np.random.Generator
+            This frame's stream for view errors (one draw per candidate confuser, active or not).
+        """
+        wins = rng.random(len(self.confusers)) < self.config.view_win
+        things: dict[int, int] = {}
+        stuff = None
+        present = None
+        for c, active, win in zip(self.confusers, self.active, wins):
+            if not (active and win and c.sees(eye)):
+                continue
+            if c.is_thing:
+                if present is None:
+                    present = set(np.unique(segment).tolist())
+                if c.segment_id in present:
+                    things[c.segment_id] = c.category
+                continue
+            on = category == c.segment_id
+            if not on.any():
+                continue
+            hit = np.zeros(on.shape, bool)
+            hit[on] = np.sum((xyz[on] - c.centre) ** 2, axis=1) <= c.radius**2
+            if hit.any():
+                if stuff is None:
+                    stuff = np.zeros(segment.shape, np.int64)
+                stuff[hit & (stuff == 0)] = c.category
+        return ViewErrors(things, stuff)
+
+    def to_json(self) -> dict:
+        """Counts and the active confusers (JSON-ready)."""
+        return {
+            "candidates": len(self.confusers), "active": int(sum(self.active)),
+            "confusers": [{"segment_id": c.segment_id, "wrong_category": c.category,
+                           "centre": np.round(c.centre, 3).tolist(), "axis": np.round(c.axis, 3).tolist(),
+                           "cone_deg": round(c.cone_deg, 2), "radius_m": None if c.is_thing else round(c.radius, 3)}
+                          for c, a in zip(self.confusers, self.active) if a],
+        }
+
+
+def _unit_or_up(v: np.ndarray) -> np.ndarray:
+    n = float(np.linalg.norm(v))
+    return v / n if n > 1e-9 else np.array([0.0, 0.0, 1.0])
 
 
 def _disk(radius: int) -> np.ndarray:
@@ -149,6 +390,7 @@ def simulate_segmenter(
     confusable: dict[int, list[int]],
     config: NoiseConfig,
     rng: np.random.Generator,
+    view_errors: ViewErrors | None = None,
 ) -> SegmenterOutput:
     """Corrupt one frame's ground truth the way a 2D panoptic segmenter would.
 
@@ -166,6 +408,8 @@ def simulate_segmenter(
         Error rates.
     rng : np.random.Generator
         This frame's own random stream (independent across frames).
+    view_errors : ViewErrors, optional
+        This frame's view-correlated errors (:meth:`ViewConfusers.for_view`), applied first.
 
     Returns
     -------
@@ -201,9 +445,28 @@ def simulate_segmenter(
     def live(j: int) -> bool:
         return bool(np.any(lab == j))
 
+    # 0. view-correlated confusion: things relabelled whole, stuff in the patch's pixels
+    counts["pixels"] = h * w
+    if view_errors is not None:
+        for j in range(1, len(gt_ids)):
+            wrong = view_errors.things.get(int(gt_ids[j]))
+            if wrong is not None and alive[j]:
+                cat[j] = int(wrong)
+                events[j].add("view_confused")
+                counts["view_confused_things"] += 1
+                counts["view_confused_pixels"] += int(np.sum(lab == j))
+        if view_errors.stuff is not None:
+            for wrong in np.unique(view_errors.stuff[view_errors.stuff > 0]):
+                mask = (view_errors.stuff == wrong) & (lab > 0)
+                if mask.any():
+                    k = new_segment(int(wrong), {"view_confused"})
+                    lab[mask] = k
+                    counts["view_confused_patches"] += 1
+                    counts["view_confused_pixels"] += int(mask.sum())
+
     # 1. missed instances
     missed_to_bg = np.zeros((h, w), bool)
-    for j in range(1, len(cat)):
+    for j in range(1, len(alive)):  # GT segments (view-confused stuff patches are stuff, never missed)
         if alive[j] and is_thing[cat[j]] and rng.random() < config.p_miss:
             mask = lab == j
             counts["missed"] += 1
@@ -363,8 +626,14 @@ def simulate_segmenter(
         same[0] = False
         iou = inter[j] / np.maximum(area_out[j] + area_gt - inter[j], 1)
         best = float(iou[same].max()) if same.any() else 0.0
-        corrupted = bool(events[j] & {"confused", "merged", "split", "spurious"}) or best <= 0.5
-        lo, hi = config.score_corrupt if corrupted else config.score_correct
+        corrupted = bool(events[j] & {"confused", "view_confused", "merged", "split", "spurious"}) or best <= 0.5
+        s_inf = config.score_informativeness
+        informed = s_inf >= 1.0 or (s_inf > 0.0 and rng.random() < s_inf)
+        if informed:
+            lo, hi = config.score_corrupt if corrupted else config.score_correct
+        else:  # a score that says nothing about this segment's correctness
+            lo = min(config.score_corrupt[0], config.score_correct[0])
+            hi = max(config.score_corrupt[1], config.score_correct[1])
         score = float(rng.uniform(lo, hi)) if hi > lo else float(lo)
         counts["corrupted_segments" if corrupted else "correct_segments"] += 1
         counts["score_sum_corrupt" if corrupted else "score_sum_correct"] += score
@@ -393,7 +662,7 @@ COUNT_KEYS = (
     "merge_candidates", "merge_considered", "merged", "split_eligible", "split", "confusion_eligible", "confused",
     "confused_cross_kind", "boundary_eligible", "boundary_shifted", "boundary_void", "abstain_blobs",
     "spurious", "output_segments", "correct_segments", "corrupted_segments", "score_sum_correct",
-    "score_sum_corrupt",
+    "score_sum_corrupt", "view_confused_things", "view_confused_patches", "view_confused_pixels", "pixels",
 )
 
 
@@ -440,6 +709,8 @@ class NoiseStats:
                 "abstain_blobs_per_frame": round(c["abstain_blobs"] / frames, 4),
                 "spurious_per_frame": round(c["spurious"] / frames, 4),
                 "corrupted_segments": rate("corrupted_segments", "output_segments"),
+                "view_confused_things": rate("view_confused_things", "gt_things"),
+                "view_confused_pixels": rate("view_confused_pixels", "pixels"),
             },
             "mean_score": {
                 "correct": round(c["score_sum_correct"] / c["correct_segments"], 4) if c["correct_segments"] else None,
