@@ -86,7 +86,7 @@ def evaluated(trained, tmp_path_factory) -> dict:
 
 @pytest.fixture(scope="session")
 def rendered(trained, tmp_path_factory) -> dict:
-    """``lift3d render`` of the train split (9 frames, every output) at downscale 2."""
+    """``lift3d render`` of the train split (8 frames, every output) at downscale 2."""
     out = tmp_path_factory.mktemp("render") / "out"
     with contextlib.redirect_stdout(io.StringIO()):
         rc = main(["render", "--run", str(trained["run"]), "--split", "train", "--outputs", *ALL_OUTPUTS,
@@ -301,7 +301,7 @@ def test_metrics_from_arrays_with_a_perfect_prediction(trained):
     frames = [int(i) for i in scene.split("test")]
     labs = [scene.gt_labels(i) for i in frames]
     pred = RenderedSplit(frames, [scene.image(i).astype(np.float32) / 255 for i in frames],
-                         [scene.depth(i) for i in frames], [x.semantic for x in labs], [x.instance for x in labs],
+                         [scene.gt_depth(i) for i in frames], [x.semantic for x in labs], [x.instance for x in labs],
                          [np.ones(x.semantic.shape, np.float32) for x in labs])
     m = metrics_from_arrays(scene, frames, pred)
     assert m["pq_scene"] == m["pq_scene_strict"] == m["miou"] == 1.0

@@ -55,6 +55,7 @@ __all__ = [
     "json_safe",
     "write_metrics",
     "check_writable",
+    "trained_frames_warning",
 ]
 
 #: Class-area filter of the published PQ^scene / mIoU numbers, and the strict variant (no filter).
@@ -205,8 +206,24 @@ def _has_gt_panoptic(scene: Scene, frames: Sequence[int]) -> bool:
     return all(scene.frames[int(i)].gt_panoptic_path is not None for i in frames)
 
 
-def _has_gt_depth(scene: Scene, frames: Sequence[int]) -> bool:
-    return all(scene.frames[int(i)].depth_path is not None for i in frames)
+def _depth_reference(scene: Scene, frames: Sequence[int]) -> str | None:
+    """What rendered depth is scored against: the exact ``gt_depth_file_path`` maps when every frame has one
+    (synthetic scenes, whose input depth may be noisy or absent), else the input ``depth_file_path``."""
+    if all(scene.frames[int(i)].gt_depth_path is not None for i in frames):
+        return "gt_depth"
+    if all(scene.frames[int(i)].depth_path is not None for i in frames):
+        return "depth"
+    return None
+
+
+def trained_frames_warning(scene: Scene, frames: Sequence[int]) -> tuple[list[str], list[str]]:
+    """The scored ``frames`` that are also training frames (their names), and a warning about them (or none)."""
+    train = set(int(i) for i in scene.split("train"))
+    both = [scene.frames[int(i)].name for i in frames if int(i) in train]
+    if not both:
+        return [], []
+    return both, [f"{len(both)} of the {len(frames)} scored frames are also training frames: their numbers "
+                  "measure fitting, not generalisation (see frames_also_trained)"]
 
 
 # --------------------------------------------------------------------------------------- assembling
@@ -240,8 +257,9 @@ def metrics_from_arrays(scene: Scene, frames: Sequence[int], rendered: RenderedS
     -------
     dict
         ``psnr`` (mean of per-frame PSNRs, RGB in [0, 1]), the keys of :func:`compute_2d_metrics` (None
-        without GT panoptic), ``depth`` (``abs_rel rmse mae n_valid`` over all valid pixels of all frames,
-        or None without GT depth), ``pseudo_labels`` (2D keys of the pseudo-labels, or None), ``gt``
+        without GT panoptic), ``depth`` (``abs_rel rmse mae n_valid`` over all valid pixels of all frames and
+        ``reference``: ``gt_depth`` when the scene has exact depth for evaluation, else ``depth``; None without
+        either), ``pseudo_labels`` (2D keys of the pseudo-labels, or None), ``gt``
         (which GT exists) and ``notes`` (human-readable remarks).
     """
     frames = [int(i) for i in frames]
@@ -253,8 +271,8 @@ def metrics_from_arrays(scene: Scene, frames: Sequence[int], rendered: RenderedS
     out: dict[str, Any] = {"psnr": float(np.mean(psnrs)), "psnr_per_frame": psnrs}
 
     has_pan = _has_gt_panoptic(scene, frames)
-    has_depth = _has_gt_depth(scene, frames)
-    out["gt"] = {"panoptic": has_pan, "depth": has_depth, "points": scene.gt_points_path is not None}
+    depth_ref = _depth_reference(scene, frames)
+    out["gt"] = {"panoptic": has_pan, "depth": depth_ref is not None, "points": scene.gt_points_path is not None}
     if has_pan:
         gts = gt_labels(scene, frames)
         things, stuff = scene.thing_ids, scene.stuff_ids
@@ -270,10 +288,11 @@ def metrics_from_arrays(scene: Scene, frames: Sequence[int], rendered: RenderedS
         out.update(_empty_2d_block())
         out["pseudo_labels"] = None
 
-    if has_depth:
-        gd = np.concatenate([scene.depth(i).ravel() for i in frames])
+    if depth_ref is not None:
+        read = scene.gt_depth if depth_ref == "gt_depth" else scene.depth
+        gd = np.concatenate([read(i).ravel() for i in frames])
         pd = np.concatenate([np.asarray(d, np.float32).ravel() for d in rendered.depth])
-        out["depth"] = depth_error(pd, gd)
+        out["depth"] = {**depth_error(pd, gd), "reference": depth_ref}
     else:
         out["depth"] = None
     out["notes"] = notes
@@ -577,6 +596,7 @@ def evaluate_run(
     }
     metrics.update(metrics_from_arrays(scene, frames, rendered))
     del rendered
+    metrics["frames_also_trained"], metrics["warnings"] = trained_frames_warning(scene, frames)
 
     metrics["points3d"] = None
     if with_points3d and scene.gt_points_path is not None:

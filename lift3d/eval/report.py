@@ -67,6 +67,9 @@ def format_eval_table(m: dict) -> str:
     size = m.get("image_size") or [0, 0]
     lines = [f"lift3d eval  run {m.get('run')}  step {m.get('step')}  split {m.get('split')} "
              f"({m.get('frames')} frames, {size[0]}x{size[1]})"]
+    both = m.get("frames_also_trained") or []
+    for warning in m.get("warnings") or []:
+        lines.append(f"WARNING: {warning}: {', '.join(both[:8])}{', ...' if len(both) > 8 else ''}")
     for note in m.get("notes") or []:
         lines.append(f"note: {note}")
     base = m.get("pseudo_labels")
@@ -97,7 +100,7 @@ def format_eval_table(m: dict) -> str:
     d = m.get("depth")
     if d:
         parts.append(f"depth abs-rel {fmt(d.get('abs_rel'))}, RMSE {fmt(d.get('rmse'))}, MAE {fmt(d.get('mae'))} "
-                     f"({d.get('n_valid')} px)")
+                     f"({d.get('n_valid')} px{', vs exact GT depth' if d.get('reference') == 'gt_depth' else ''})")
     else:
         parts.append("depth: no GT depth")
     lines.append(" | ".join(parts))
