@@ -45,11 +45,14 @@ def test_depth_maps_become_ray_distances_in_normalised_units(tiny_indoor):
     rays = RayGenerator(scene.cameras, norm.c2w_normalized(scene.cameras.c2w))
     data = TrainingData(scene, scene.split("train"), rays, progress=False, depth_scale=norm.scale)
     batch = data.sample(3, 50, 4, torch.Generator().manual_seed(0))
-    assert batch.depth is not None and (batch.depth > 0).all()
+    # Synthetic sensor depth has holes (0 = unknown) at depth edges and a few percent at random.
+    assert batch.depth is not None and (batch.depth > 0).float().mean() > 0.8
     # The surface point along each ray, back in world units, sits at the depth map's z in its camera.
     world = norm.to_world((batch.origins + batch.dirs * batch.depth[:, None]).numpy())
     frames = np.asarray(scene.split("train"))[batch.image.numpy()]
     for k in range(0, len(world), 17):
+        if batch.depth[k] <= 0:
+            continue
         i = int(frames[k])
         c2w = scene.cameras.c2w_opencv[i]
         z = ((world[k] - c2w[:3, 3]) @ c2w[:3, :3])[2]
