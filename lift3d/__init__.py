@@ -16,9 +16,8 @@ __all__ = ["__version__", "load_labelled_points", "instances"]
 
 
 def __getattr__(name: str):
-    # Lazy: `import lift3d` stays cheap (no torch/open3d import) for tools that only read exports.
     if name in ("load_labelled_points", "instances"):
-        from lift3d.export import api
+        from lift3d.export import api  # on first use: keeps `import lift3d` cheap (no torch, no Open3D)
 
         return getattr(api, name)
     raise AttributeError(f"module 'lift3d' has no attribute {name!r}")

@@ -19,13 +19,19 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
+from lift3d.eval.evaluate import evaluate_run
+from lift3d.export import export_run
+from lift3d.synth import make_scene
+from lift3d.train.trainer import train
 from lift3d.utils.atomic import write_json_atomic
+from lift3d.viz.points import save_views
+from lift3d.viz.run import plot_run
 
 # Tiny settings (--quick, used by the test suite): every stage and code path, about a minute.
 QUICK = {
     "scene": {"n_views": 12, "width": 40, "height": 40},
     "train": {
-        "field": {"grid_resolution_cap": 32, "grid_min_resolution": 16, "head_hidden_dim": 32},
+        "field": {"grid": {"resolution_cap": 32, "min_resolution": 16, "head_hidden_dim": 32}},
         "sampling": {"proposal_resolutions": [24], "proposal_samples": [32], "num_samples": 16},
         "data": {"images_per_batch": 4, "rays_per_image": 64, "patch_size": 8},
         "optim": {"steps": 60, "warmup_steps": 5},
@@ -47,13 +53,6 @@ class DemoResult:
 def run_demo(output_dir: str | Path = "demo_out", *, kind: str = "indoor", preset: str = "fast", seed: int = 0,
              quick: bool = False, progress: bool = True, print_summary: bool = True) -> DemoResult:
     """Run every stage; see the module docstring. Returns where everything is and the key metrics."""
-    from lift3d.eval.evaluate import evaluate_run
-    from lift3d.export import export_run
-    from lift3d.synth import make_scene
-    from lift3d.train.trainer import train
-    from lift3d.viz.points import save_views
-    from lift3d.viz.run import plot_run
-
     out = Path(output_dir)
     out.mkdir(parents=True, exist_ok=True)
     stages: dict[str, float] = {}

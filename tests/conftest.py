@@ -77,7 +77,7 @@ def tiny_run(tmp_path_factory) -> Path:
     result = train(root / "scene", preset="fast", output_dir=root / "runs", progress=False, print_summary=False,
                    overrides={"optim": {"steps": 15}, "losses": {"feature": 0.0},
                               "data": {"patch_size": 0, "rays_per_image": 128},
-                              "field": {"grid_resolution_cap": 48},
+                              "field": {"grid": {"resolution_cap": 48}},
                               "trainer": {"eval_every": 0, "eval_images": 0, "checkpoint_every": 0}})
     return Path(result.run.path)
 

@@ -8,13 +8,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from lift3d.model.run import load_run
+from lift3d.model.run_folder import RunFolder
 from lift3d.synth import make_scene
-from lift3d.train.run import RunFolder
-from lift3d.train.trainer import load_run
 
 WORKER = Path(__file__).parent / "helpers" / "dist_worker.py"
 OVERRIDES = {
-    "field": {"grid_resolution_cap": 24, "grid_min_resolution": 12, "head_hidden_dim": 16},
+    "field": {"grid": {"resolution_cap": 24, "min_resolution": 12, "head_hidden_dim": 16}},
     "sampling": {"proposal_resolutions": [16], "proposal_samples": [24], "num_samples": 12},
     "data": {"images_per_batch": 4, "rays_per_image": 64, "patch_size": 8},
     "optim": {"steps": 40, "warmup_steps": 5},

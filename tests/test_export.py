@@ -30,9 +30,9 @@ from lift3d.export.writers.semantickitti import read_semantickitti_label
 from lift3d.export.instances import _tiny_model, assign_instances, voxel_downsample_majority
 from lift3d.export.mesh import choose_density_threshold, extract_labelled_mesh
 from lift3d.export.pointcloud import OrientedBox, extract_labelled_points
-from lift3d.train.normalization import SceneNormalization
-from lift3d.train.run import RunFolder
-from lift3d.train.trainer import LoadedRun
+from lift3d.model.normalization import SceneNormalization
+from lift3d.model.run import LoadedRun
+from lift3d.model.run_folder import RunFolder
 
 # ------------------------------------------------------------------------------------------ analytic field
 # Normalised coordinates. Shell A (a hollow ball) hides a solid ball C inside it; ball B stands apart; a
@@ -152,13 +152,13 @@ def test_surface_points_lie_on_the_visible_surfaces(surface_points):
     assert np.all((pts.confidence > 0.5) & (pts.confidence <= 1.0))
 
 
-def test_a_sheet_thinner_than_the_coarse_lattice_is_still_contoured():
+def test_a_sheet_thinner_than_the_coarse_lattice_is_still_contoured(monkeypatch):
     """A wall one fine cell thick, lying between two coarse-lattice nodes (what depth supervision makes of
     a wall): the coarse pass sees zero on both sides and, at 64³, would skip it."""
-    from lift3d.export.mesh import field_isosurface, finest_grid_cells
+    from lift3d.export.mesh import DEFAULT_LATTICE, field_isosurface, lattice_resolution
 
     model = _tiny_model()
-    model.cfg.field.grid_max_resolution = 128  # the field claims 128³ detail
+    monkeypatch.setattr(type(model.field), "finest_resolution", property(lambda f: 128))  # claims 128³ detail
     x0 = 0.5 + 1.0 / 64  # halfway between two coarse nodes at 64³ (spacing 2/64)
 
     def geometry(x):
@@ -166,13 +166,14 @@ def test_a_sheet_thinner_than_the_coarse_lattice_is_still_contoured():
         return sigma, torch.zeros(len(x), model.cfg.field.geo_feat_dim), ((x + 1) / 2).clamp(0, 1)
 
     model.field.geometry = geometry
-    assert finest_grid_cells(model) == 128
+    assert lattice_resolution(model) == 128
     surf = field_isosurface(model, 100.0, 128)
     assert surf.stats["coarse_cells"] == 128 and len(surf.faces) > 0
     xs = surf.vertices[:, 0]
     assert np.abs(xs - x0).max() < 2.0 / 128 and np.ptp(surf.vertices[:, 1]) > 1.5  # the whole sheet
-    model.cfg.field.kind = "mlp"  # no grid: the default coarse lattice
-    assert finest_grid_cells(model) == 0
+    monkeypatch.setattr(type(model.field), "finest_resolution", property(lambda f: 0))  # no lattice (MLP)
+    assert lattice_resolution(model) == DEFAULT_LATTICE
+    assert field_isosurface(model, 100.0, 128).stats["coarse_cells"] == 64  # the default coarse lattice
 
 
 def test_automatic_threshold_matches_the_rendered_surface(analytic):

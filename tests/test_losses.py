@@ -5,8 +5,8 @@ import math
 import pytest
 import torch
 
-from lift3d.train.assignment import instance_cost_matrix, linear_assign_instances
-from lift3d.train.losses import (
+from lift3d.model.assignment import instance_cost_matrix, linear_assign_instances
+from lift3d.model.losses import (
     charbonnier_loss,
     depth_loss,
     disparity_loss,
@@ -163,7 +163,7 @@ def test_feature_loss_hand_case():
 
 @pytest.mark.slow
 def test_perceptual_prior_loads_offline_and_is_frozen():
-    from lift3d.train.perceptual import build_perceptual_prior
+    from lift3d.model.perceptual import build_perceptual_prior
 
     net = build_perceptual_prior()
     x = torch.rand(2, 3, 16, 16, requires_grad=True)

@@ -5,7 +5,9 @@ import pytest
 import torch
 
 from lift3d.data.cameras import Cameras, look_at
-from lift3d.field.field import FieldConfig, PanopticField, SceneSpace
+from lift3d.field.grid import GridField, GridFieldConfig
+from lift3d.field.registry import FieldConfig
+from lift3d.field.space import SceneSpace
 from lift3d.train.observed import observed_cells
 
 
@@ -46,20 +48,20 @@ def test_cells_outside_the_declared_scene_box_are_unobserved():
 
 
 def test_unobserved_cells_have_zero_density_and_survive_a_checkpoint():
-    cfg = FieldConfig(grid_max_resolution=16, grid_min_resolution=8, num_semantic_classes=3, num_instance_channels=0,
-                      contraction="none", head_hidden_dim=8)
-    field = PanopticField(cfg)
+    cfg = FieldConfig(num_semantic_classes=3, num_instance_channels=0, contraction="none",
+                      grid=GridFieldConfig(max_resolution=16, min_resolution=8, head_hidden_dim=8))
+    field = GridField(cfg)
     behind, ahead = torch.tensor([[0.0, -0.9, 0.0]]), torch.tensor([[0.0, 0.5, 0.0]])
     assert field.geometry(behind)[0].item() > 0  # the opaque start
     cams = one_camera([0.0, -0.5, 0.0], [0.0, 1.0, 0.0])
     field.space.observed = observed_cells(field.space, cams, [0], 16, near=0.05)
     assert field.geometry(behind)[0].item() == 0.0 and field.geometry(ahead)[0].item() > 0
     # The lattice is part of the state: a fresh field loads it; a checkpoint without it means "all observed".
-    fresh = PanopticField(cfg)
+    fresh = GridField(cfg)
     fresh.load_state_dict(field.state_dict())
     assert fresh.geometry(behind)[0].item() == 0.0
     old = {k: v for k, v in field.state_dict().items() if not k.endswith("observed")}
-    legacy = PanopticField(cfg)
+    legacy = GridField(cfg)
     legacy.load_state_dict(old)
     assert legacy.geometry(behind)[0].item() > 0
 

@@ -339,7 +339,7 @@ def test_plot_run_end_to_end(tiny_scene, tmp_path):
     from lift3d.train.trainer import train
 
     overrides = {
-        "field": {"grid_resolution_cap": 16, "grid_min_resolution": 8, "head_hidden_dim": 16},
+        "field": {"grid": {"resolution_cap": 16, "min_resolution": 8, "head_hidden_dim": 16}},
         "sampling": {"proposal_resolutions": [16], "proposal_samples": [16], "num_samples": 8},
         "data": {"images_per_batch": 2, "rays_per_image": 32, "patch_size": 4},
         "optim": {"steps": 4, "warmup_steps": 1},

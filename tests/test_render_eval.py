@@ -38,6 +38,7 @@ from lift3d.eval.evaluate import (
 )
 from lift3d.eval.metrics import miou, pq_scene
 from lift3d.eval.report import format_eval_table
+from lift3d.model.run import load_run
 from lift3d.render.images import FrameRender, render_frame
 from lift3d.render.output import (
     RenderedOutputWriter,
@@ -45,7 +46,6 @@ from lift3d.render.output import (
     panoptic_segment_ids,
     resolve_outputs,
 )
-from lift3d.train.trainer import load_run
 
 TOP_KEYS = ["psnr", "miou", "pq_scene", "sq_scene", "rq_scene", "miou_strict", "pq_scene_strict",
             "sq_scene_strict", "rq_scene_strict", "things", "stuff", "depth", "pseudo_labels", "points3d",
@@ -65,7 +65,7 @@ def trained(tmp_path_factory) -> dict:
     root = tmp_path_factory.mktemp("render_eval")
     scene = root / "scene"
     make_scene(scene, kind="indoor", seed=3, n_views=10, width=48, height=48, progress=False)
-    overrides = {"optim": {"steps": 30}, "losses": {"feature": 0.0}, "field": {"grid_resolution_cap": 32},
+    overrides = {"optim": {"steps": 30}, "losses": {"feature": 0.0}, "field": {"grid": {"resolution_cap": 32}},
                  "data": {"rays_per_image": 64, "patch_size": 8}, "trainer": {"eval_images": 1}}
     result = train(scene, preset="fast", output_dir=root / "outputs", overrides=overrides, progress=False,
                    print_summary=False)
@@ -475,17 +475,3 @@ def test_points_from_rendered_depth_lie_on_the_rendered_surface(trained):
     np.testing.assert_array_equal(pts.instance, ref.instance[hit])
     sub = points_from_rendered_depth(loaded, scene, num_points=50, frames=[i], min_opacity=0.0)
     assert len(sub.xyz) == 50
-
-
-def test_points3d_block_falls_back_to_rendered_depth_without_the_export_module(trained, monkeypatch):
-    import sys
-
-    from lift3d.eval.evaluate import points3d_block
-
-    monkeypatch.setitem(sys.modules, "lift3d.export.pointcloud", None)  # makes the import fail
-    loaded = load_run(trained["run"], "cpu")
-    scene = loaded.scene()
-    block = points3d_block(loaded, scene, num_points=3000, progress=False)
-    assert block["source"] == "rendered_depth" and 0 < block["n_pred"] <= 3000
-    assert block["n_gt"] == len(scene.gt_points()["xyz"])
-    assert 0 <= block["fscore"] <= 1 and block["chamfer"] > 0

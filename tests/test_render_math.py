@@ -240,14 +240,16 @@ def test_outer_bound_hand_case():
 
 
 def test_render_rays_extremes_no_nan():
-    from lift3d.field.field import FieldConfig, PanopticField, ProposalGrid
+    from lift3d.field.grid import GridField, GridFieldConfig
+    from lift3d.field.layers import ProposalGrid
+    from lift3d.field.registry import FieldConfig
     from lift3d.render.renderer import SamplingConfig, render_rays
 
     torch.manual_seed(0)
     for contraction, bounded in (("none", True), ("linf", False)):
-        cfg = FieldConfig(grid_max_resolution=16, grid_min_resolution=8, num_semantic_classes=3,
-                          num_instance_channels=2, contraction=contraction, head_hidden_dim=8)
-        field = PanopticField(cfg)
+        cfg = FieldConfig(num_semantic_classes=3, num_instance_channels=2, contraction=contraction,
+                          grid=GridFieldConfig(max_resolution=16, min_resolution=8, head_hidden_dim=8))
+        field = GridField(cfg)
         with torch.no_grad():
             field.density_mlp[-1].bias[0] = 30.0  # saturated density everywhere
         props = torch.nn.ModuleList([ProposalGrid(8)])

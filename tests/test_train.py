@@ -7,13 +7,14 @@ import pytest
 import torch
 import yaml
 
+from lift3d.model.run import load_run
 from lift3d.render.images import render_frame
 from lift3d.synth import make_scene
-from lift3d.train.trainer import load_run, train
+from lift3d.train.trainer import train
 
 # Small and quick, but every code path of the real presets (proposals, patches, all losses).
 TINY = {
-    "field": {"grid_resolution_cap": 32, "grid_min_resolution": 16, "head_hidden_dim": 32},
+    "field": {"grid": {"resolution_cap": 32, "min_resolution": 16, "head_hidden_dim": 32}},
     "sampling": {"proposal_resolutions": [24], "proposal_samples": [32], "num_samples": 16},
     "data": {"images_per_batch": 2, "rays_per_image": 96, "patch_size": 8},
     "optim": {"steps": 120, "warmup_steps": 10},
@@ -36,9 +37,9 @@ def trained(tiny_indoor, tmp_path_factory):
 
 def test_depth_maps_become_ray_distances_in_normalised_units(tiny_indoor):
     from lift3d.data.scene import load_scene
+    from lift3d.model.normalization import infer_normalization
     from lift3d.render.rays import RayGenerator
     from lift3d.train.data import TrainingData
-    from lift3d.train.normalization import infer_normalization
 
     scene = load_scene(tiny_indoor)
     norm, _ = infer_normalization(scene)
@@ -72,7 +73,7 @@ def test_run_folder_layout_and_derived_config(trained, tiny_indoor):
     assert cfg["field"]["contraction"] == "none" and cfg["scene"]["bounded"] is True
     assert cfg["field"]["num_semantic_classes"] == len(cfg["scene"]["labels"]["semantic_ids"]) + 1
     assert cfg["field"]["num_instance_channels"] >= 16 and cfg["field"]["num_instance_channels"] % 8 == 0
-    assert 16 <= cfg["field"]["grid_max_resolution"] <= 32
+    assert 16 <= cfg["field"]["grid"]["max_resolution"] <= 32
     assert "why_grid_resolution" in cfg["scene"] and "why_bounded" in cfg["scene"]
     ckpts = sorted((run / "checkpoints").glob("step-*.pt"))
     assert ckpts[-1].name == "step-000000120.pt"

@@ -34,10 +34,15 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+import torch
+
 from lift3d import __version__
 from lift3d.errors import InputError
+from lift3d.synth import make_scene
 from lift3d.utils.atomic import write_json_atomic, write_text_atomic
+from lift3d.utils.device import available_cpus
 from lift3d.utils.progress import progress_bar
+from lift3d.viz.bench import plot_pareto, plot_scaling
 
 #: Ablation variants of the paper's Table 6: name → overrides.
 ABLATION = {
@@ -58,8 +63,8 @@ PAPER_ABLATION = {
 
 # Tiny settings for --quick: every code path, seconds per run.
 _QUICK_TRAIN = {
-    "field": {"grid_resolution_cap": 32, "grid_min_resolution": 16, "head_hidden_dim": 32, "mlp_width": 64,
-              "mlp_depth": 3},
+    "field": {"grid": {"resolution_cap": 32, "min_resolution": 16, "head_hidden_dim": 32},
+              "mlp": {"width": 64, "depth": 3}},
     "sampling": {"proposal_resolutions": [24], "proposal_samples": [32], "num_samples": 16},
     "data": {"images_per_batch": 4, "rays_per_image": 64, "patch_size": 8},
     "optim": {"steps": 40, "warmup_steps": 5},
@@ -95,10 +100,6 @@ class BenchConfig:
 
 def machine_info() -> dict:
     """CPU model, cores available, torch and thread count: printed with every table."""
-    import torch
-
-    from lift3d.utils.device import available_cpus
-
     cpu = platform.processor() or platform.machine()
     try:
         for line in Path("/proc/cpuinfo").read_text().splitlines():
@@ -156,8 +157,6 @@ def _reevaluate(path: Path, train_spec: dict) -> dict:
 
 
 def _scene(cfg: BenchConfig, kind: str, seed: int, noise: str, **size) -> Path:
-    from lift3d.synth import make_scene
-
     name = f"{kind}_s{seed}_{noise}" + ("_" + "_".join(f"{k}{v}" for k, v in sorted(size.items())) if size else "")
     root = cfg.out / "scenes" / name
     if not (root / "transforms.json").is_file():
@@ -321,8 +320,6 @@ def _f(x: Any, nd: int = 3) -> str:
 
 
 def write_reports(results: dict, cfg: BenchConfig) -> None:
-    from lift3d.viz.bench import plot_pareto, plot_scaling
-
     write_json_atomic(cfg.out / "results.json", results)
     write_text_atomic(cfg.out / "results.csv", results_csv(results))
     pictures = {}

@@ -22,14 +22,21 @@ import sys
 import time
 from pathlib import Path
 
+import numpy as np
+import torch
+from torch.profiler import ProfilerActivity, profile
+
+from lift3d.data.scene import load_scene
+from lift3d.eval.evaluate import evaluate_run, json_safe
+from lift3d.export.pointcloud import benchmark_export
+from lift3d.model.run_folder import RunFolder
+from lift3d.train.trainer import Trainer, resolve_config, train
 from lift3d.utils.atomic import write_json_atomic
+from lift3d.utils.device import set_threads
 from lift3d.utils.memory import peak_rss_mb
 
 
 def run_train(spec: dict) -> dict:
-    from lift3d.eval.evaluate import evaluate_run, json_safe
-    from lift3d.train.trainer import train
-
     overrides = json.loads(json.dumps(spec.get("overrides", {})))
     overrides.setdefault("trainer", {})["seed"] = int(spec.get("seed", 0))
     start = time.perf_counter()
@@ -52,8 +59,6 @@ def run_train(spec: dict) -> dict:
 
 def run_evaluate(spec: dict) -> dict:
     """Evaluate an existing run folder again (``lift3d bench --reevaluate``)."""
-    from lift3d.eval.evaluate import evaluate_run, json_safe
-
     metrics = evaluate_run(spec["run"], split="test", progress=False, num_points=int(spec.get("num_points", 200_000)),
                            timing_repeats=int(spec.get("timing_repeats", 10)))
     return json_safe({"run": spec["run"], "metrics": metrics})
@@ -61,13 +66,6 @@ def run_evaluate(spec: dict) -> dict:
 
 def _trainer(spec: dict):
     """A fresh trainer for the spec's scene and preset (CPU), and the thread count in use."""
-    import torch
-
-    from lift3d.data.scene import load_scene
-    from lift3d.train.run import RunFolder
-    from lift3d.train.trainer import Trainer, resolve_config
-    from lift3d.utils.device import set_threads
-
     threads = set_threads()
     scene = load_scene(spec["scene"])
     cfg, norm = resolve_config(scene, spec.get("preset", "fast"), spec.get("overrides", {}))
@@ -111,8 +109,6 @@ def _timed_calls(fn, n: int, warmup: int = 2) -> list[float]:
 
 
 def run_scaling(spec: dict) -> dict:
-    import numpy as np
-
     trainer, scene, cfg, threads = _trainer(spec)
     warmup, steps = int(spec.get("warmup", 10)), int(spec.get("steps", 20))
     times = _timed_steps(trainer, warmup + steps)[warmup:]
@@ -122,7 +118,7 @@ def run_scaling(spec: dict) -> dict:
         "render_ms": 1e3 * float(np.median(render)),
         "peak_rss_mb": peak_rss_mb(),
         "threads": threads,
-        "grid_resolution": cfg.field.grid_max_resolution,
+        "grid_resolution": trainer.model.field.finest_resolution,
         "instance_channels": cfg.field.num_instance_channels,
         "semantic_classes": cfg.field.num_semantic_classes,
         "pixels": int(trainer.data.num_pixels),
@@ -131,8 +127,6 @@ def run_scaling(spec: dict) -> dict:
 
 def _profile_table(fn, calls: int, top: int) -> dict:
     """Profile ``calls`` calls of ``fn``: named stages (inclusive) and top operators (self time), ms per call."""
-    from torch.profiler import ProfilerActivity, profile
-
     with profile(activities=[ProfilerActivity.CPU]) as prof:
         for _ in range(calls):
             fn()
@@ -150,12 +144,10 @@ def _profile_table(fn, calls: int, top: int) -> dict:
 
 def run_profile(spec: dict) -> dict:
     """Where a training step and a 2048-ray render spend their time (after warm-up, one process)."""
-    import numpy as np
-
     trainer, scene, cfg, threads = _trainer(spec)
     warmup, steps, top = int(spec.get("warmup", 10)), int(spec.get("steps", 10)), int(spec.get("top", 12))
     step_times = _timed_steps(trainer, warmup + steps)[warmup:]
-    train = _profile_table(lambda: _one_step(trainer), steps, top)
+    step_profile = _profile_table(lambda: _one_step(trainer), steps, top)
     render_fn = _render_rays(trainer, scene)
     repeats = int(spec.get("repeats", 10))
     render_times = _timed_calls(render_fn, repeats)
@@ -163,16 +155,13 @@ def run_profile(spec: dict) -> dict:
     return {
         "preset": cfg.preset, "threads": threads, "steps": steps, "repeats": repeats,
         "step_ms": 1e3 * float(np.median(step_times)), "render_ms": 1e3 * float(np.median(render_times)),
-        "train": train, "render": render,
+        "train": step_profile, "render": render,
         "batch": {"images_per_batch": cfg.data.images_per_batch, "rays_per_image": cfg.data.rays_per_image,
                   "patch_size": cfg.data.patch_size, "num_samples": cfg.sampling.num_samples},
     }
 
 
 def run_export(spec: dict) -> dict:
-    from lift3d.export.pointcloud import benchmark_export
-    from lift3d.utils.device import set_threads
-
     set_threads()
     return benchmark_export(spec["run"], num_points=int(spec.get("num_points", 1_000_000)))
 

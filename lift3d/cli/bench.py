@@ -59,6 +59,7 @@ def add_parser(subparsers, verb: str) -> argparse.ArgumentParser:
 
 
 def run(args: argparse.Namespace) -> int:
+    # here, not at module level: keeps `lift3d --help` cheap
     from lift3d.bench.runner import BenchConfig, run_benchmark
 
     docs = Path(args.docs_dir) if args.docs_dir else None

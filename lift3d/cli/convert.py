@@ -81,6 +81,7 @@ def add_parser(subparsers: argparse._SubParsersAction, verb: str) -> argparse.Ar
 
 def run(args: argparse.Namespace) -> int:
     """Run ``lift3d convert``; returns the exit code (bad input raises :class:`InputError`)."""
+    # here, not at module level: keeps `lift3d --help` cheap
     from lift3d.convert import WriteOptions, parse_id_list, summary
     from lift3d.convert.predictions import load_categories
 
@@ -97,6 +98,7 @@ def run(args: argparse.Namespace) -> int:
     _reject_foreign_flags(args)
 
     if args.source == "colmap":
+        # here, not at module level: keeps `lift3d --help` cheap
         from lift3d.convert import colmap
 
         if args.predictions is None:
@@ -105,6 +107,7 @@ def run(args: argparse.Namespace) -> int:
                                categories=categories, things=things, test_every=args.test_every,
                                scene_box=args.scene_box, options=options)
     elif args.source == "scannet":
+        # here, not at module level: keeps `lift3d --help` cheap
         from lift3d.convert import scannet
 
         if args.predictions is None:
@@ -113,6 +116,7 @@ def run(args: argparse.Namespace) -> int:
                                 things=things, test_every=args.test_every, use_depth=not args.no_depth,
                                 intrinsics_size=scannet.parse_size(args.intrinsics_size), options=options)
     else:
+        # here, not at module level: keeps `lift3d --help` cheap
         from lift3d.convert import panoptic_lifting
         from lift3d.convert.scannet import parse_size
 

@@ -24,6 +24,7 @@ def add_parser(subparsers, verb: str) -> argparse.ArgumentParser:
 
 
 def run(args: argparse.Namespace) -> int:
+    # here, not at module level: keeps `lift3d --help` cheap
     from lift3d.demo import run_demo
 
     run_demo(args.output_dir, kind=args.kind, preset=args.preset, seed=args.seed, quick=args.quick)

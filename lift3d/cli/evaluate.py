@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import argparse
 
+from lift3d.errors import InputError
+
 DESCRIPTION = """\
 Render the split, score it against the scene's ground truth and print one table: the lifted result next to
 the scene's own 2D pseudo-labels (the baseline lifting has to beat), with a things/stuff split.
@@ -49,7 +51,7 @@ def add_parser(subparsers, verb: str) -> argparse.ArgumentParser:
 
 def run(args: argparse.Namespace) -> int:
     """Evaluate, print the table, say where the metrics went."""
-    from lift3d.errors import InputError
+    # here, not at module level: keeps `lift3d --help` cheap
     from lift3d.eval.evaluate import evaluate_run
     from lift3d.eval.report import format_eval_table
     from lift3d.utils.device import set_threads

@@ -4,6 +4,9 @@ from __future__ import annotations
 
 import argparse
 
+from lift3d.errors import InputError
+from lift3d.export.writers import WRITERS, ExportOptions
+
 DESCRIPTION = """\
 Export a trained run's labelled geometry (docs/export.md) into --output-dir, every file atomically:
   mesh.ply         --mesh: density isosurface with per-vertex rgb, semantic, instance, confidence
@@ -27,8 +30,6 @@ examples:
 
 
 def _format_lines() -> str:
-    from lift3d.export.writers import WRITERS
-
     return "\n".join(f"  {name:<16} {cls.help}" + (f" [extra: {cls.extra}]" if cls.extra else "")
                      for name, cls in WRITERS.items())
 
@@ -45,8 +46,6 @@ def add_parser(subparsers, verb: str) -> argparse.ArgumentParser:
     p.add_argument("--mesh", action="store_true", help="export mesh.ply (density isosurface)")
     p.add_argument("--output-dir", metavar="DIR", help="destination folder (default: RUN/export)")
     p.add_argument("--data", metavar="DIR", help="the scene folder, if it moved since training")
-    from lift3d.export.writers import WRITERS
-
     p.add_argument("--format", nargs="+", default=["ply"], choices=tuple(WRITERS), metavar="FMT",
                    help=f"files to write: {' '.join(WRITERS)} (default: ply; see above)")
     f = p.add_argument_group("formats")
@@ -104,7 +103,7 @@ def run(args: argparse.Namespace) -> int:
     import shlex
     import sys
 
-    from lift3d.errors import InputError
+    # here, not at module level: keeps `lift3d --help` cheap
     from lift3d.export import export_run
 
     if not (args.pointcloud or args.mesh):
@@ -119,15 +118,14 @@ def run(args: argparse.Namespace) -> int:
     if args.obb_center is not None or args.obb_rotation is not None or args.obb_scale is not None:
         if args.obb_scale is None:
             raise InputError("--obb-scale", "a crop box needs its side lengths (--obb-scale SX SY SZ)")
-        from lift3d.export.pointcloud import OrientedBox
+        from lift3d.export.pointcloud import OrientedBox  # here: keeps `lift3d --help` cheap (torch)
 
         obb = OrientedBox.from_params(args.obb_center or (0, 0, 0), args.obb_rotation or (0, 0, 0), args.obb_scale)
     if args.map_resolution < 0:
         raise InputError("--map-resolution", f"must be > 0, got {args.map_resolution}")
     if args.height_band is not None and not args.height_band[1] > args.height_band[0]:
         raise InputError("--height-band", f"needs LOW < HIGH, got {args.height_band[0]} {args.height_band[1]}")
-    from lift3d.export.writers import ExportOptions
-    from lift3d.utils.device import set_threads
+    from lift3d.utils.device import set_threads  # here: keeps `lift3d --help` cheap (torch)
 
     options = ExportOptions(pcd_ascii=args.pcd_ascii, frame_id=args.frame_id, map_resolution=args.map_resolution,
                             up=args.up, floor_classes=tuple(t.strip() for t in args.floor_classes.split(",")

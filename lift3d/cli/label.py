@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import argparse
 
+from lift3d.errors import InputError
+
 DESCRIPTION = """\
 Write a scene's 2D panoptic pseudo-labels (panoptic/<name>.png, panoptic.json with per-segment scores,
 optional confidence/<name>.png, and the categories in transforms.json), replacing existing ones; images,
@@ -71,7 +73,7 @@ def add_parser(subparsers, verb: str) -> argparse.ArgumentParser:
 
 def run(args: argparse.Namespace) -> int:
     """Label the scene and print a short summary."""
-    from lift3d.errors import InputError
+    # here, not at module level: keeps `lift3d --help` cheap
     from lift3d.label import format_report, label_from_predictions, label_with_model
 
     if args.from_predictions is not None:

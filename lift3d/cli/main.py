@@ -1,5 +1,10 @@
 """``lift3d <verb>``: one entry point, a module per verb (``lift3d/cli/<verb>.py`` with ``add_parser``).
 
+Verb modules import their implementation inside ``run`` so that ``lift3d --help`` stays cheap. A verb whose
+parser itself is expensive to build (``train``: its flags come from the torch-backed run configuration) sets
+a module constant ``HELP`` (its one-line help); the parser then lists it without building it unless that
+verb is the one being run.
+
 Bad input (:class:`~lift3d.errors.Lift3DError`) is printed as one line with exit code 2; ``--debug`` shows the
 traceback instead.
 """
@@ -29,7 +34,9 @@ VERBS = {
 }
 
 
-def build_parser() -> argparse.ArgumentParser:
+def build_parser(verb: str | None = None, *, lazy: bool = False) -> argparse.ArgumentParser:
+    """The ``lift3d`` parser. With ``lazy``, verbs other than ``verb`` whose module sets ``HELP`` get a stub
+    sub-parser (listed in ``--help``, never parsed with): ``lift3d --help`` builds no expensive parser."""
     parser = argparse.ArgumentParser(
         prog="lift3d",
         description="3D panoptic labelling: lift noisy 2D panoptic predictions into a 3D-consistent panoptic "
@@ -38,14 +45,17 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--version", action="version", version=f"lift3d {__version__}")
     parser.add_argument("--debug", action="store_true", help="show full tracebacks instead of one-line errors")
     sub = parser.add_subparsers(dest="verb", metavar="<verb>")
-    for verb, module in VERBS.items():
+    for name, module in VERBS.items():
         try:
             mod = importlib.import_module(f"lift3d.cli.{module}")
         except ModuleNotFoundError as exc:
             if exc.name == f"lift3d.cli.{module}":
                 continue  # not built yet: absent rather than pretending to work
             raise
-        p = mod.add_parser(sub, verb)
+        if lazy and name != verb and getattr(mod, "HELP", None):
+            sub.add_parser(name, help=mod.HELP)
+            continue
+        p = mod.add_parser(sub, name)
         p.add_argument("--debug", action="store_true", default=argparse.SUPPRESS,
                        help="show full tracebacks instead of one-line errors")
     return parser
@@ -62,7 +72,8 @@ def one_line(message: str) -> str:
 
 def main(argv: list[str] | None = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
-    parser = build_parser()
+    verb = next((a for a in argv if not a.startswith("-")), None)  # the top level has no option with a value
+    parser = build_parser(verb, lazy=True)
     args = parser.parse_args(argv)
     if not getattr(args, "verb", None):
         parser.print_help()

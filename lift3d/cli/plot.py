@@ -5,6 +5,8 @@ from __future__ import annotations
 import argparse
 from pathlib import Path
 
+from lift3d.errors import InputError
+
 DESCRIPTION = """\
 Pictures of lift3d's results, written off-screen as PNG (headless machines). --show opens a window: the
 interactive 3D view instead of the PNGs for FILE.ply, the written charts for --run and --bench.
@@ -91,8 +93,6 @@ def _split_list(text: str) -> list[str]:
 
 def _check(args: argparse.Namespace) -> str:
     """Validate the combination of arguments; return the mode (file, run or bench)."""
-    from lift3d.errors import InputError
-
     given = [m for m, v in (("file", args.file), ("run", args.run), ("bench", args.bench)) if v]
     if len(given) != 1:
         raise InputError("lift3d plot", "give exactly one of FILE.ply, --run RUN or --bench DIR"
@@ -110,6 +110,7 @@ def _check(args: argparse.Namespace) -> str:
     if args.html and args.html_max_points < 1:
         raise InputError("--html-max-points", f"must be at least 1 (got {args.html_max_points})")
     if args.show:
+        # here, not at module level: keeps `lift3d --help` cheap
         from lift3d.viz.points import has_display
 
         if not has_display():
@@ -136,7 +137,7 @@ def run(args: argparse.Namespace) -> int:
 
 
 def _plot_file(args: argparse.Namespace) -> list[Path]:
-    from lift3d.errors import InputError
+    # here, not at module level: keeps `lift3d --help` cheap
     from lift3d.viz.points import VIEWS, plot_instances, save_turntable, save_views
 
     path = Path(args.file)
@@ -153,6 +154,7 @@ def _plot_file(args: argparse.Namespace) -> list[Path]:
     out_dir = Path(args.output_dir) if args.output_dir else path.parent / "plots"
     written: list[Path] = []
     if args.html:
+        # here, not at module level: keeps `lift3d --help` cheap
         from lift3d.viz.html import write_html
 
         return [write_html(path, args.html, classes=args.classes, up=args.up, hide=common["hide"],
@@ -173,6 +175,7 @@ def _plot_file(args: argparse.Namespace) -> list[Path]:
 
 
 def _plot_run(args: argparse.Namespace) -> list[Path]:
+    # here, not at module level: keeps `lift3d --help` cheap
     from lift3d.utils.device import set_threads
     from lift3d.viz.run import plot_run
 
@@ -183,6 +186,7 @@ def _plot_run(args: argparse.Namespace) -> list[Path]:
 
 
 def _plot_bench(args: argparse.Namespace) -> list[Path]:
+    # here, not at module level: keeps `lift3d --help` cheap
     from lift3d.viz.bench import load_results, plot_pareto, plot_scaling
 
     results, where = load_results(args.bench)
@@ -208,8 +212,6 @@ def _show_images(paths: list[Path]) -> None:
         except (ImportError, ValueError, RuntimeError):
             continue
     else:
-        from lift3d.errors import InputError
-
         raise InputError("--show", "no interactive matplotlib backend (install tkinter or PyQt); the PNGs are written")
     for path in paths:
         img = mpimg.imread(str(path))

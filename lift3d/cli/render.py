@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import argparse
 
-from lift3d.render.output import DEFAULT_OUTPUTS, OUTPUTS
+HELP = "render a trained run's views (rgb, depth, semantic, instance, panoptic)"
 
 DESCRIPTION = """\
 Render a trained run's views into DIR/<output>/<frame stem>.png:
@@ -27,7 +27,11 @@ examples:
 
 def add_parser(subparsers, verb: str) -> argparse.ArgumentParser:
     """Register ``lift3d render`` on the CLI's subparsers."""
-    p = subparsers.add_parser(verb, help="render a trained run's views (rgb, depth, semantic, instance, panoptic)",
+    # The output names live beside the renderer, which imports torch: here, not at module level, so that
+    # `lift3d --help` stays cheap (see lift3d.cli.main).
+    from lift3d.render.output import DEFAULT_OUTPUTS, OUTPUTS
+
+    p = subparsers.add_parser(verb, help=HELP,
                               usage="lift3d render --run RUN [--split test | --camera-path FILE] "
                                     "[--outputs NAME ...] --output-dir DIR",
                               description=DESCRIPTION, formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -54,6 +58,7 @@ def add_parser(subparsers, verb: str) -> argparse.ArgumentParser:
 
 def run(args: argparse.Namespace) -> int:
     """Render, then print one line saying what was written where."""
+    # here, not at module level: keeps `lift3d --help` cheap (torch)
     from lift3d.render.output import render_to_folder
     from lift3d.utils.device import set_threads
 

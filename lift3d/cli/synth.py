@@ -62,6 +62,7 @@ def add_parser(subparsers, verb: str) -> argparse.ArgumentParser:
 
 def run(args: argparse.Namespace) -> int:
     """Build the scene and print a short summary with the noise statistics."""
+    # here, not at module level: keeps `lift3d --help` cheap
     from lift3d.synth import make_scene
 
     report = make_scene(args.out, kind=args.kind, seed=args.seed, noise=args.noise, n_views=args.views,

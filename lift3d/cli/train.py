@@ -6,7 +6,10 @@ import argparse
 import sys
 from pathlib import Path
 
-from lift3d.train.config import PRESETS, add_config_flags, overrides_from_args
+from lift3d.cli.main import one_line
+from lift3d.errors import InputError, Lift3DError
+
+HELP = "train a panoptic radiance field on a scene folder"
 
 DESCRIPTION = """\
 Train a panoptic radiance field (the paper's model S and losses) on a scene folder. Sizes the scene
@@ -26,7 +29,11 @@ examples:
 
 
 def add_parser(subparsers, verb: str) -> argparse.ArgumentParser:
-    p = subparsers.add_parser(verb, help="train a panoptic radiance field on a scene folder",
+    # The flags come from the run configuration, which imports torch: here, not at module level, so that
+    # `lift3d --help` stays cheap (see lift3d.cli.main).
+    from lift3d.model.config import PRESETS, add_config_flags
+
+    p = subparsers.add_parser(verb, help=HELP,
                               usage="lift3d train --data DIR [DIR ...] [--preset NAME] [--output-dir DIR] [--resume RUN] [settings]",
                               description=DESCRIPTION, formatter_class=argparse.RawDescriptionHelpFormatter)
     p.add_argument("--data", nargs="+", metavar="DIR",
@@ -48,7 +55,8 @@ def add_parser(subparsers, verb: str) -> argparse.ArgumentParser:
 
 
 def run(args: argparse.Namespace) -> int:
-    from lift3d.errors import InputError
+    # here, not at module level: keeps `lift3d --help` cheap (torch)
+    from lift3d.model.config import overrides_from_args
     from lift3d.train.trainer import train
 
     overrides = overrides_from_args(args)
@@ -78,8 +86,6 @@ def run(args: argparse.Namespace) -> int:
 def scene_list(entries: list[str]) -> list[Path]:
     """Scene folders from ``--data``: folders as given; a file is a list of folders, one per line (blank lines
     and ``#`` comments skipped, relative paths relative to the list file)."""
-    from lift3d.errors import InputError
-
     scenes: list[Path] = []
     for entry in entries:
         path = Path(entry)
@@ -105,9 +111,7 @@ def scene_list(entries: list[str]) -> list[Path]:
 
 def train_many(scenes: list[Path], preset: str, output_dir: str, overrides: dict, progress: bool) -> int:
     """Train each scene as its own run. A scene that fails is reported and skipped; exit code 2 if any did."""
-    from lift3d.cli.main import one_line
-    from lift3d.errors import Lift3DError
-    from lift3d.train.trainer import train
+    from lift3d.train.trainer import train  # here, not at module level: keeps `lift3d --help` cheap (torch)
 
     failed = []
     for k, scene in enumerate(scenes):

@@ -49,6 +49,7 @@ from lift3d.data.images import (
 from lift3d.data.ply import read_labelled_ply, write_labelled_ply
 from lift3d.errors import InputError
 from lift3d.utils.atomic import write_json_atomic
+from lift3d.utils.progress import progress_bar
 
 SPLITS = ("train", "val", "test")
 
@@ -301,8 +302,6 @@ class Scene:
 
     def validate(self, progress: bool = False) -> None:
         """Decode every file once and raise on the first problem (sizes, ids, readability)."""
-        from lift3d.utils.progress import progress_bar
-
         for i in progress_bar(range(len(self)), desc="validate scene", disable=not progress):
             self.image(i)
             self.pseudo_labels(i)
@@ -392,12 +391,13 @@ def parse_categories(raw: Any, where: Path, default_color=None) -> list[Category
         except (TypeError, ValueError):
             raise InputError(where, f"categories[{k}].color: expected [r, g, b]") from None
         if rgb is None:
-            rgb = default_color(k, cid) if default_color is not None else _default_color(cid)
+            rgb = default_color(k, cid) if default_color is not None else default_category_color(cid)
         out.append(Category(cid, str(c.get("name", f"class_{cid}")), bool(c.get("isthing", 0)), rgb))
     return out
 
 
-def _default_color(cid: int) -> tuple[int, int, int]:
+def default_category_color(cid: int) -> tuple[int, int, int]:
+    """The colour of a category that names none (the same for an id everywhere in lift3d)."""
     rng = np.random.default_rng(cid * 7919)
     return tuple(int(x) for x in rng.integers(40, 256, 3))
 

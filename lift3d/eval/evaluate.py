@@ -26,15 +26,20 @@ import tempfile
 import time
 from dataclasses import dataclass
 from pathlib import Path
+from types import SimpleNamespace
 from typing import Any, Iterable, NamedTuple, Sequence
 
 import numpy as np
+import torch
 
 from lift3d import __version__
 from lift3d.data.scene import Scene
 from lift3d.errors import InputError
 from lift3d.eval.metrics import depth_error, miou, pq_scene, psnr_per_image
 from lift3d.eval.points3d import points3d
+from lift3d.export.pointcloud import extract_labelled_points
+from lift3d.model.run import LoadedRun, load_run
+from lift3d.render.images import render_frame
 from lift3d.utils.atomic import write_text_atomic
 from lift3d.utils.progress import progress_bar
 
@@ -44,6 +49,7 @@ __all__ = [
     "LabelStack",
     "RenderedSplit",
     "compute_2d_metrics",
+    "frame_psnrs",
     "render_split",
     "gt_labels",
     "pseudo_labels",
@@ -155,14 +161,14 @@ def compute_2d_metrics(preds, gts, things: Iterable[int], stuff: Iterable[int]) 
 
 
 # --------------------------------------------------------------------------------------- inputs
-def render_split(loaded, scene: Scene, frames: Sequence[int], *, chunk_size: int | None = None,
+def render_split(loaded: LoadedRun, scene: Scene, frames: Sequence[int], *, chunk_size: int | None = None,
                  progress: bool = True) -> RenderedSplit:
     """Render ``frames`` of ``scene`` at full resolution with the run's model.
 
     Parameters
     ----------
     loaded : LoadedRun
-        From :func:`lift3d.train.trainer.load_run`.
+        From :func:`lift3d.model.run.load_run` (or a run being trained).
     scene : Scene
         The run's scene (same world frame as at training).
     frames : sequence of int
@@ -172,8 +178,6 @@ def render_split(loaded, scene: Scene, frames: Sequence[int], *, chunk_size: int
     progress : bool
         Show a progress bar.
     """
-    from lift3d.render.images import render_frame
-
     rays = loaded.rays(scene)
     out = RenderedSplit(list(map(int, frames)), [], [], [], [], [])
     for i in progress_bar(out.frames, desc="eval: render", disable=not progress, unit="frame"):
@@ -226,6 +230,12 @@ def trained_frames_warning(scene: Scene, frames: Sequence[int]) -> tuple[list[st
                   "measure fitting, not generalisation (see frames_also_trained)"]
 
 
+def frame_psnrs(scene: Scene, rendered: RenderedSplit) -> list[float]:
+    """PSNR of every rendered frame against its photo (RGB in [0, 1]); the scene's PSNR is their mean."""
+    return [float(psnr_per_image(r[None], (scene.image(i).astype(np.float32) / 255.0)[None])[0])
+            for i, r in zip(rendered.frames, rendered.rgb)]
+
+
 # --------------------------------------------------------------------------------------- assembling
 def _empty_2d_block() -> dict:
     block: dict[str, Any] = {}
@@ -266,8 +276,7 @@ def metrics_from_arrays(scene: Scene, frames: Sequence[int], rendered: RenderedS
     if list(rendered.frames) != frames:
         raise ValueError("metrics_from_arrays: rendered frames differ from frames")
     notes: list[str] = []
-    psnrs = [float(psnr_per_image(r[None], (scene.image(i).astype(np.float32) / 255.0)[None])[0])
-             for i, r in zip(frames, rendered.rgb)]
+    psnrs = frame_psnrs(scene, rendered)
     out: dict[str, Any] = {"psnr": float(np.mean(psnrs)), "psnr_per_frame": psnrs}
 
     has_pan = _has_gt_panoptic(scene, frames)
@@ -300,9 +309,10 @@ def metrics_from_arrays(scene: Scene, frames: Sequence[int], rendered: RenderedS
 
 
 # --------------------------------------------------------------------------------------- 3D
-def points_from_rendered_depth(loaded, scene: Scene, num_points: int = 200_000, frames: Sequence[int] | None = None,
-                               min_opacity: float = 0.5, seed: int = 0, progress: bool = False):
-    """Labelled points from back-projected rendered depth (the stand-in when no export module exists).
+def points_from_rendered_depth(loaded: LoadedRun, scene: Scene, num_points: int = 200_000,
+                               frames: Sequence[int] | None = None, min_opacity: float = 0.5, seed: int = 0,
+                               progress: bool = False) -> SimpleNamespace:
+    """Labelled points from back-projected rendered depth (a cross-check of the export's surface points).
 
     Every frame of ``frames`` (default: all frames of the scene, training views included) is rendered at a
     downscale that gives roughly ``num_points`` rays in total; pixels whose opacity is at least
@@ -315,10 +325,6 @@ def points_from_rendered_depth(loaded, scene: Scene, num_points: int = 200_000, 
         ``xyz`` (float64 [N, 3], world frame), ``semantic``, ``instance`` (int64 [N]), ``confidence``
         (float32 [N]) -- the fields of the export module's labelled points.
     """
-    from types import SimpleNamespace
-
-    from lift3d.render.images import render_frame
-
     frames = list(range(len(scene))) if frames is None else [int(i) for i in frames]
     cams = scene.cameras
     total = float(sum(int(cams.width[i]) * int(cams.height[i]) for i in frames))
@@ -353,21 +359,7 @@ def points_from_rendered_depth(loaded, scene: Scene, num_points: int = 200_000, 
     return SimpleNamespace(xyz=xyz, semantic=sem, instance=inst, confidence=conf)
 
 
-def _labelled_points(loaded, scene: Scene, num_points: int, progress: bool):
-    """The run's labelled point cloud: the export module's surface points, or rendered depth without it."""
-    try:
-        from lift3d.export.pointcloud import extract_labelled_points
-    except ImportError as exc:
-        # Only "the module does not exist (yet)" falls back; a broken export module is a bug to surface.
-        if getattr(exc, "name", None) not in ("lift3d.export.pointcloud", "lift3d.export"):
-            raise
-        pts = points_from_rendered_depth(loaded, scene, num_points=num_points, progress=progress)
-        return pts, "rendered_depth"
-    pts = extract_labelled_points(loaded, scene, source="surface", num_points=num_points)
-    return pts, "export.surface"
-
-
-def points3d_block(loaded, scene: Scene, num_points: int = 200_000, progress: bool = True) -> dict | None:
+def points3d_block(loaded: LoadedRun, scene: Scene, num_points: int = 200_000, progress: bool = True) -> dict | None:
     """3D metrics of the run's labelled points against ``gt/points.ply`` (None when there is no 3D GT).
 
     Returns
@@ -377,12 +369,13 @@ def points3d_block(loaded, scene: Scene, num_points: int = 200_000, progress: bo
         rq_strict`` (``min_area`` 0), ``accuracy completeness chamfer`` (world units),
         ``precision recall fscore`` at ``tau`` (1 % of the GT bounding-box diagonal), ``tau``, ``n_pred``,
         ``n_gt``, ``instance_recall`` (share of GT objects with ≥ 500 points found as one instance with point
-        IoU > 0.5) and ``n_instances``, ``source`` (``export.surface`` or ``rendered_depth``), ``num_points``.
+        IoU > 0.5) and ``n_instances``, ``source`` (``export.surface``: the export's surface points),
+        ``num_points``.
     """
     gt = scene.gt_points()
     if gt is None:
         return None
-    pts, source = _labelled_points(loaded, scene, num_points, progress)
+    pts, source = extract_labelled_points(loaded, scene, source="surface", num_points=num_points), "export.surface"
     r = points3d(np.asarray(pts.xyz, np.float64), np.asarray(pts.semantic).astype(np.int64),
                  np.asarray(pts.instance).astype(np.int64), gt["xyz"], np.asarray(gt["semantic"]).astype(np.int64),
                  np.asarray(gt["instance"]).astype(np.int64), things=scene.thing_ids, stuff=scene.stuff_ids,
@@ -396,7 +389,7 @@ def points3d_block(loaded, scene: Scene, num_points: int = 200_000, progress: bo
 
 
 # --------------------------------------------------------------------------------------- speed
-def time_render(loaded, n_rays: int = 2048, repeats: int = 10, *, warmup: int = 2, scene: Scene | None = None,
+def time_render(loaded: LoadedRun, n_rays: int = 2048, repeats: int = 10, *, warmup: int = 2, scene: Scene | None = None,
                 frame: int | None = None) -> dict:
     """Milliseconds to render ``n_rays`` rays of a test view with rgb + depth + semantic + instance.
 
@@ -424,8 +417,6 @@ def time_render(loaded, n_rays: int = 2048, repeats: int = 10, *, warmup: int = 
         ``median_ms``, ``all_ms`` (list), ``threads`` (``torch.get_num_threads()`` during the runs),
         ``n_rays``, ``repeats``, ``warmup``, ``device``, ``frame``.
     """
-    import torch  # here, not at module level: `import lift3d.eval` stays free of torch
-
     if repeats < 1 or n_rays < 1:
         raise ValueError("time_render: repeats and n_rays must be positive")
     scene = loaded.scene() if scene is None else scene
@@ -569,8 +560,6 @@ def evaluate_run(
     InputError
         Missing / corrupt run folder or checkpoint, missing scene, unwritable output (named in the message).
     """
-    from lift3d.train.trainer import load_run
-
     if json_path is not None:
         check_writable(json_path)
     start = time.perf_counter()

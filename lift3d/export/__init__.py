@@ -13,8 +13,9 @@ Modules:
 - :mod:`lift3d.export.ground` — the scene's up axis and its floor-like classes;
 - :mod:`lift3d.export.api` — loading exports downstream (``lift3d.load_labelled_points``, ``lift3d.instances``).
 
-:func:`export_run` is what ``lift3d export`` runs. Importing this package is cheap: heavy modules (torch,
-Open3D, PyVista) load only when a function needs them.
+:func:`export_run` is what ``lift3d export`` runs. Importing this package is cheap (``lift3d.load_labelled_points``
+reads exports through it): the modules that need torch, Open3D or PyVista load only when a function needs
+them.
 
 Examples
 --------
@@ -28,24 +29,36 @@ Export a run's labelled point cloud and mesh into a folder, then read it back::
 
 from __future__ import annotations
 
+import dataclasses
 import os
+import re
 import sys
+import tempfile
 import time
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+
+from lift3d import __version__
+from lift3d.data.ply import write_labelled_ply
+from lift3d.errors import InputError
+from lift3d.export import json_files
+from lift3d.export.ground import floor_class_ids, resolve_up
+from lift3d.export.scene_graph import build_scene_graph, write_scene_graph_json
+from lift3d.export.writers import ExportContext, ExportOptions, check_formats
+
+if TYPE_CHECKING:  # torch-backed types, for annotations only (see the module docstring)
+    from lift3d.model.run import LoadedRun
 
 __all__ = ["export_run", "extract_labelled_points", "LabelledPoints", "benchmark_export", "ExportOptions"]
 
 
 def __getattr__(name: str):
     if name in ("extract_labelled_points", "LabelledPoints", "benchmark_export", "OrientedBox"):
-        from lift3d.export import pointcloud
+        from lift3d.export import pointcloud  # on first use: keeps `import lift3d.export` cheap
 
         return getattr(pointcloud, name)
-    if name == "ExportOptions":
-        from lift3d.export.writers import ExportOptions
-
-        return ExportOptions
     raise AttributeError(f"module 'lift3d.export' has no attribute {name!r}")
 
 
@@ -57,10 +70,6 @@ def check_writable(output_dir: str | Path) -> Path:
     InputError
         Naming the folder when it cannot be created or written.
     """
-    import tempfile
-
-    from lift3d.errors import InputError
-
     out = Path(output_dir)
     try:
         out.mkdir(parents=True, exist_ok=True)
@@ -75,7 +84,7 @@ def check_writable(output_dir: str | Path) -> Path:
 def export_run(run: str | Path, output_dir: str | Path | None = None, *, pointcloud: bool = True, mesh: bool = False,
                formats: tuple[str, ...] | list[str] = ("ply",), data: str | Path | None = None,
                split_instances: bool = False, resolution: int = 256, options=None,
-               command: str | None = None, progress: bool = False, loaded=None, scene=None,
+               command: str | None = None, progress: bool = False, loaded: LoadedRun | None = None, scene=None,
                **point_options: Any) -> dict[str, Any]:
     """Export a trained run's labelled geometry into ``output_dir`` (every file written atomically).
 
@@ -113,18 +122,11 @@ def export_run(run: str | Path, output_dir: str | Path | None = None, *, pointcl
     dict
         Paths written, counts, thresholds and seconds.
     """
-    import dataclasses
-
-    import numpy as np
-
-    from lift3d import __version__
-    from lift3d.data.ply import write_labelled_ply
-    from lift3d.errors import InputError
-    from lift3d.export import json_files
-    from lift3d.export.ground import floor_class_ids, resolve_up
+    # torch-backed modules load here, not at import: keeps `import lift3d.export` cheap
     from lift3d.export.instances import instance_records
-    from lift3d.export.scene_graph import build_scene_graph, write_scene_graph_json
-    from lift3d.export.writers import ExportContext, ExportOptions, check_formats
+    from lift3d.export.mesh import extract_labelled_mesh, match_instance_ids
+    from lift3d.export.pointcloud import extract_labelled_points
+    from lift3d.model.run import load_run
 
     options = options if options is not None else ExportOptions()
     writers = check_formats(formats)  # unknown names and missing extras fail before any work
@@ -133,8 +135,6 @@ def export_run(run: str | Path, output_dir: str | Path | None = None, *, pointcl
     out = check_writable(output_dir if output_dir is not None else Path(run) / "export")
     started = time.perf_counter()
     if loaded is None:
-        from lift3d.train.trainer import load_run
-
         loaded = load_run(run, point_options.get("device") or "auto")
     if scene is None:
         scene = loaded.scene(data)
@@ -152,14 +152,10 @@ def export_run(run: str | Path, output_dir: str | Path | None = None, *, pointcl
     comments = [f"lift3d {__version__} export", f"frame {frame}", f"source run {loaded.run.path}"]
     pts = labelled = None
     if pointcloud:
-        from lift3d.export.pointcloud import extract_labelled_points
-
         pts = extract_labelled_points(loaded, scene, progress=progress, **point_options)
         thresholds["points"] = pts.thresholds
         summary.update(points=len(pts), point_stats=pts.stats)
     if mesh:
-        from lift3d.export.mesh import extract_labelled_mesh, match_instance_ids
-
         labelled = extract_labelled_mesh(loaded, scene, resolution=resolution,
                                          density_threshold=point_options.get("density_threshold"),
                                          refine_surface=point_options.get("refine_surface", True), frame=frame,
@@ -233,20 +229,12 @@ def export_run(run: str | Path, output_dir: str | Path | None = None, *, pointcl
 
 def _world_cell(transform, frame: str) -> float:
     """1/128 of the normalised foreground box's side ([-1, 1], so 2/256) in output units (a last resort)."""
-    import numpy as np
-
     scale = 1.0 if frame == "normalized" else float(np.cbrt(abs(np.linalg.det(np.asarray(transform)[:3, :3]))))
     return 2.0 / 256 * scale
 
 
 def _write_instance_meshes(folder: Path, labelled, names: dict[int, str]) -> list[str]:
     """``instances/<id>_<class>.ply``: the faces whose three vertices belong to one instance."""
-    import re
-
-    import numpy as np
-
-    from lift3d.data.ply import write_labelled_ply
-
     written = []
     face_instance = labelled.instance[labelled.faces]
     whole = (face_instance == face_instance[:, :1]).all(1)

@@ -24,7 +24,9 @@ from typing import Any
 
 import numpy as np
 
+from lift3d.data.ply import read_labelled_ply
 from lift3d.errors import InputError
+from lift3d.export.writers.pcd import read_pcd
 
 
 @dataclass(frozen=True)
@@ -194,16 +196,12 @@ def load_labelled_points(path: str | Path) -> LabelledPointCloud:
     if not p.is_file():
         raise InputError(p, "file not found")
     if p.suffix.lower() == ".pcd":
-        from lift3d.export.writers.pcd import read_pcd
-
         d = read_pcd(p)
         n = len(d["xyz"])
         data = {"xyz": d["xyz"], "rgb": d.get("rgb"), "semantic": d.get("label", np.zeros(n)).astype(np.int32),
                 "instance": d.get("instance", np.zeros(n)).astype(np.int32),
                 "confidence": d["confidence"].astype(np.float32) if "confidence" in d else None}
     else:
-        from lift3d.data.ply import read_labelled_ply
-
         d = read_labelled_ply(p)
         n = len(d["xyz"])
         if "semantic" not in d:

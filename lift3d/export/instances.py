@@ -30,6 +30,12 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
+import torch
+
+from lift3d.model.config import load_config
+from lift3d.model.labels import LabelSpace
+from lift3d.model.panoptic import PanopticModel
+from lift3d.utils.progress import progress_bar
 
 #: Neighbour offsets that, with their negatives, make the 26-neighbourhood of a voxel (each edge once).
 _HALF_NEIGHBOURHOOD = np.array(
@@ -53,13 +59,13 @@ class PointLabels:
     confidence: np.ndarray  # [N] float32 probability of the chosen class
 
 
-def query_point_labels(model, x_normalized, view_dirs=None, *, chunk: int = 32768, progress: bool = False,
+def query_point_labels(model: PanopticModel, x_normalized, view_dirs=None, *, chunk: int = 32768, progress: bool = False,
                        desc: str = "label points") -> PointLabels:
     """Run density, colour, semantic and instance heads once per point, in chunks, without rendering.
 
     Parameters
     ----------
-    model : lift3d.train.model.PanopticModel
+    model : PanopticModel
         A trained model (evaluation mode).
     x_normalized : array_like or Tensor
         ``[N, 3]`` points in normalised scene coordinates (uncontracted).
@@ -84,10 +90,6 @@ def query_point_labels(model, x_normalized, view_dirs=None, *, chunk: int = 3276
     >>> labels.semantic.shape, labels.rgb.dtype, bool((labels.semantic > 0).all())
     ((3,), dtype('uint8'), True)
     """
-    import torch
-
-    from lift3d.utils.progress import progress_bar
-
     device = next(model.parameters()).device
     x = torch.as_tensor(x_normalized, dtype=torch.float32)
     n = x.shape[0]
@@ -427,19 +429,12 @@ def instance_records(xyz: np.ndarray, semantic: np.ndarray, instance: np.ndarray
     return records
 
 
-def _tiny_model():
-    """A small untrained :class:`~lift3d.train.model.PanopticModel` for doctests and unit tests."""
-    import torch
-
-    from lift3d.train.config import load_config
-    from lift3d.train.data import LabelSpace
-
+def _tiny_model() -> PanopticModel:
+    """A small untrained :class:`~lift3d.model.panoptic.PanopticModel` for doctests and unit tests."""
     torch.manual_seed(0)
     cfg = load_config("fast", "indoor", None)
-    cfg.field.grid_max_resolution, cfg.field.grid_min_resolution = 16, 8
+    cfg.field.grid.max_resolution, cfg.field.grid.min_resolution = 16, 8
     cfg.field.num_semantic_classes, cfg.field.num_instance_channels = 4, 3
     cfg.field.contraction = "none"
     labels = LabelSpace(semantic_ids=[1, 2, 3], thing_ids=[3])
-    from lift3d.train.model import PanopticModel
-
     return PanopticModel(cfg, labels).eval()

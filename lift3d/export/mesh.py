@@ -51,8 +51,22 @@ from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
+import torch
+import torch.nn.functional as F
+from scipy.spatial import cKDTree
 
+from lift3d.data.scene import Scene
+from lift3d.errors import InputError
+from lift3d.export.instances import assign_instances, query_point_labels
 from lift3d.field.encodings import uncontract
+from lift3d.model.normalization import SceneNormalization
+from lift3d.model.panoptic import PanopticModel
+from lift3d.model.run import LoadedRun
+from lift3d.render.samplers import ray_aabb, spacing_fn, spacing_fn_inv
+from lift3d.render.volume import interval_midpoints, opacity_crossing_interval, render_weights
+from lift3d.utils.device import resolve_device
+from lift3d.utils.geometry import vertex_normals
+from lift3d.utils.progress import progress_bar
 
 #: Far background beyond this ∞-norm radius (normalised units; the foreground box is radius 1) is skipped
 #: in unbounded scenes: contracted space squeezes it into a thin shell where the isosurface is unreliable.
@@ -68,6 +82,9 @@ REFINE_FACTOR = 4.0
 REFINE_OUTSIDE = 2.0
 REFINE_INSIDE = 4.0
 REFINE_SAMPLES = 16
+#: Lattice cells per axis assumed for a field without a lattice of its own (the plain MLP field): the
+#: fallback threshold's voxel and the point cloud's instance link radius.
+DEFAULT_LATTICE = 128
 
 
 # ------------------------------------------------------------------------------------------ contraction
@@ -79,10 +96,8 @@ def contracted_radius(radius: float, kind: str) -> float:
 
 
 # ------------------------------------------------------------------------------------------ field access
-def field_density(model, x: np.ndarray, chunk: int = 65536):
+def field_density(model: PanopticModel, x: np.ndarray, chunk: int = 65536) -> np.ndarray:
     """Density ``σ`` (float32 numpy) at normalised points, in chunks, without gradients."""
-    import torch
-
     device = next(model.parameters()).device
     x = np.asarray(x, np.float32)
     out = np.empty(len(x), np.float32)
@@ -93,19 +108,25 @@ def field_density(model, x: np.ndarray, chunk: int = 65536):
     return out
 
 
-def contraction_of(model) -> str:
+def contraction_of(model: PanopticModel) -> str:
     """``none`` for bounded fields, else the contraction the field uses (``linf``/``l2``)."""
-    return getattr(model.field.space, "contraction", "none" if model.bounded else "linf")
+    return model.field.space.contraction
 
 
-def train_frames(scene) -> np.ndarray:
+def lattice_resolution(model: PanopticModel) -> int:
+    """Cells per axis of the field's finest lattice (:attr:`~lift3d.field.base.Field.finest_resolution`), or
+    :data:`DEFAULT_LATTICE` for a field without one (the plain MLP)."""
+    return int(model.field.finest_resolution) or DEFAULT_LATTICE
+
+
+def train_frames(scene: Scene) -> np.ndarray:
     """Training frame indices (every frame when the scene has no train split)."""
     frames = np.asarray(scene.split("train"), np.int64)
     return frames if len(frames) else np.arange(len(scene))
 
 
 # ------------------------------------------------------------------------------------------ threshold
-def choose_density_threshold(loaded, scene, *, n_rays: int = 1024, n_samples: int = 256, seed: int = 0,
+def choose_density_threshold(loaded: LoadedRun, scene: Scene, *, n_rays: int = 1024, n_samples: int = 256, seed: int = 0,
                              voxel: float | None = None) -> tuple[float, dict[str, Any]]:
     """The density ``τ`` whose isosurface best matches the rendered surface of training rays.
 
@@ -113,13 +134,13 @@ def choose_density_threshold(loaded, scene, *, n_rays: int = 1024, n_samples: in
 
     Parameters
     ----------
-    loaded : lift3d.train.trainer.LoadedRun
-    scene : lift3d.data.scene.Scene
+    loaded : LoadedRun
+    scene : Scene
     n_rays, n_samples : int
         Training rays and uniform samples per ray.
     voxel : float, optional
-        Grid voxel (normalised units) for the fallback rule ``ln 2 / voxel``; default the field's finest grid
-        voxel.
+        Grid voxel (normalised units) for the fallback rule ``ln 2 / voxel``; default a cell of the field's
+        finest lattice (:func:`lattice_resolution`).
 
     Returns
     -------
@@ -127,15 +148,10 @@ def choose_density_threshold(loaded, scene, *, n_rays: int = 1024, n_samples: in
     info : dict
         ``rule``, ``rays_used``, ``mean_error_samples`` and the fallback value, for ``metadata.json``.
     """
-    import torch
-
-    from lift3d.render.samplers import ray_aabb, spacing_fn, spacing_fn_inv
-    from lift3d.render.volume import interval_midpoints, render_weights
-
     model = loaded.model
     extent = 2.0 if not model.bounded else 1.0
     if voxel is None:
-        voxel = 2.0 * extent / max(int(loaded.cfg.field.grid_max_resolution), 1)
+        voxel = 2.0 * extent / lattice_resolution(model)
     fallback = math.log(2.0) / voxel
     frames = train_frames(scene)
     rays = loaded.rays(scene)
@@ -228,15 +244,7 @@ def _grid_to_normalized(g: np.ndarray, contraction: str) -> np.ndarray:
     return uncontract(g, contraction)
 
 
-def finest_grid_cells(model) -> int:
-    """Cells per axis of the field's finest density grid (0 when it has none, e.g. the plain MLP field)."""
-    cfg = getattr(getattr(model, "cfg", None), "field", None)
-    if cfg is None or getattr(cfg, "kind", "grid") != "grid":
-        return 0
-    return int(getattr(cfg, "grid_max_resolution", 0) or 0)
-
-
-def field_isosurface(model, threshold: float, resolution: int = 256, *, max_radius: float | None = None,
+def field_isosurface(model: PanopticModel, threshold: float, resolution: int = 256, *, max_radius: float | None = None,
                      progress: bool = False) -> FieldSurface:
     """Contour the density of ``model`` at ``threshold`` on a chunked grid (see the module docstring).
 
@@ -263,17 +271,13 @@ def field_isosurface(model, threshold: float, resolution: int = 256, *, max_radi
     >>> surf.faces.shape, surf.resolution
     ((0, 3), 16)
     """
-    import pyvista as pv
-    import torch
-    import torch.nn.functional as F
-
-    from lift3d.utils.progress import progress_bar
+    import pyvista as pv  # VTK loads in seconds: only when contouring
 
     contraction = contraction_of(model)
     extent = 1.0 if contraction == "none" else 2.0
     # The coarse lattice must resolve the field's finest grid: a surface one grid cell thick (what depth
     # supervision makes of a wall) falls between coarser nodes and would never be refined.
-    coarse_target = max(COARSE_CELLS, min(resolution, finest_grid_cells(model)))
+    coarse_target = max(COARSE_CELLS, min(resolution, model.field.finest_resolution))
     factor = max(1, math.ceil(resolution / coarse_target))
     coarse_cells = math.ceil(resolution / factor)
     cells = coarse_cells * factor
@@ -350,7 +354,7 @@ def field_isosurface(model, threshold: float, resolution: int = 256, *, max_radi
     return FieldSurface(grid_vertices, vertices, faces, tau, cells, extent, contraction, stats)
 
 
-def refine_to_rendered_surface(model, surface: FieldSurface, *, outside: float = REFINE_OUTSIDE,
+def refine_to_rendered_surface(model: PanopticModel, surface: FieldSurface, *, outside: float = REFINE_OUTSIDE,
                                inside: float = REFINE_INSIDE, samples: int = REFINE_SAMPLES,
                                chunk: int = 8192) -> FieldSurface:
     """Move every isosurface vertex along its normal onto the surface volume rendering sees there.
@@ -392,11 +396,6 @@ def refine_to_rendered_surface(model, surface: FieldSurface, *, outside: float =
     >>> refine_to_rendered_surface(m, s).stats["refine"]["moved"]
     0
     """
-    import torch
-
-    from lift3d.render.volume import opacity_crossing_interval
-    from lift3d.utils.geometry import vertex_normals
-
     n_vertices = len(surface.grid_vertices)
     if n_vertices == 0 or len(surface.faces) == 0:
         return replace(surface, stats={**surface.stats, "refine": {"moved": 0, "vertices": n_vertices}})
@@ -546,7 +545,7 @@ class CameraVisibility:
             return (z > self.near) & (uv[:, 0] >= 0) & (uv[:, 0] < w) & (uv[:, 1] >= 0) & (uv[:, 1] < h)
 
 
-def normalized_cameras(loaded, scene):
+def normalized_cameras(loaded: LoadedRun, scene: Scene):
     """The scene's cameras with poses expressed in the run's normalised coordinates."""
     return replace(scene.cameras, c2w=loaded.norm.c2w_normalized(scene.cameras.c2w))
 
@@ -574,7 +573,7 @@ class LabelledMesh:
     stats: dict[str, Any] = field(default_factory=dict)
 
 
-def extract_labelled_mesh(loaded, scene, *, resolution: int = 256, density_threshold: float | None = None,
+def extract_labelled_mesh(loaded: LoadedRun, scene: Scene, *, resolution: int = 256, density_threshold: float | None = None,
                           refine_surface: bool = True, frame: str = "world", min_points: int = 0, device=None,
                           progress: bool = False) -> LabelledMesh:
     """The density isosurface with labels queried at every vertex.
@@ -600,14 +599,8 @@ def extract_labelled_mesh(loaded, scene, *, resolution: int = 256, density_thres
     device : str, optional
         Move the model to this device first.
     """
-    from scipy.spatial import cKDTree
-
-    from lift3d.export.instances import assign_instances, query_point_labels
-
     _check_frame(frame)
     if device is not None:
-        from lift3d.utils.device import resolve_device
-
         loaded.model.to(resolve_device(device))
     model = loaded.model
     if density_threshold is None:
@@ -653,8 +646,6 @@ def match_instance_ids(mesh: LabelledMesh, xyz: np.ndarray, semantic: np.ndarray
     mesh instance takes the id with most votes if no other mesh instance took it already, else (and when it
     has no votes) a new id after the point cloud's largest.
     """
-    from scipy.spatial import cKDTree
-
     if not len(mesh.vertices) or not len(xyz) or mesh.instance.max(initial=0) == 0:
         return
     _, nn = cKDTree(np.asarray(xyz, np.float64)).query(mesh.vertices.astype(np.float64), workers=-1)
@@ -684,7 +675,7 @@ def match_instance_ids(mesh: LabelledMesh, xyz: np.ndarray, semantic: np.ndarray
 
 
 # ------------------------------------------------------------------------------------------ frames
-def world_from_normalized(norm) -> np.ndarray:
+def world_from_normalized(norm: SceneNormalization) -> np.ndarray:
     """4×4 matrix taking normalised coordinates to world coordinates (inverse of ``norm.matrix``)."""
     return np.linalg.inv(norm.matrix)
 
@@ -697,7 +688,7 @@ def to_frame(x_normalized: np.ndarray, transform: np.ndarray, frame: str) -> np.
     return x @ transform[:3, :3].T + transform[:3, 3]
 
 
-def _length_to_frame(length_normalized: float, norm, frame: str) -> float:
+def _length_to_frame(length_normalized: float, norm: SceneNormalization, frame: str) -> float:
     return float(length_normalized) if frame == "normalized" else float(length_normalized) / float(norm.scale)
 
 
@@ -707,7 +698,5 @@ def _normalized_voxel(surface: FieldSurface) -> float:
 
 
 def _check_frame(frame: str) -> None:
-    from lift3d.errors import InputError
-
     if frame not in ("world", "normalized"):
         raise InputError("--frame", f"unknown frame {frame!r} (world or normalized)")

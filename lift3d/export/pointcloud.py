@@ -34,13 +34,35 @@ Examples
 from __future__ import annotations
 
 import math
+import tempfile
 import time
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 import numpy as np
+import torch
 
+from lift3d.data.ply import write_labelled_ply
+from lift3d.data.scene import Scene
 from lift3d.errors import InputError
+from lift3d.export.instances import assign_instances, query_point_labels, voxel_downsample_majority
+from lift3d.export.mesh import (
+    CameraVisibility,
+    _check_frame,
+    choose_density_threshold,
+    field_isosurface,
+    lattice_resolution,
+    normalized_cameras,
+    refine_to_rendered_surface,
+    to_frame,
+    train_frames,
+    view_directions,
+    world_from_normalized,
+)
+from lift3d.field.encodings import uncontract
+from lift3d.model.run import LoadedRun, load_run
+from lift3d.utils.device import resolve_device
 from lift3d.utils.memory import peak_rss_mb
 
 #: Rays source: keep rays whose accumulated opacity exceeds this (nerfstudio's rule).
@@ -133,7 +155,7 @@ class OrientedBox:
 
 
 # ------------------------------------------------------------------------------------------ main entry
-def extract_labelled_points(loaded, scene, *, source: str = "surface", num_points: int = 1_000_000,
+def extract_labelled_points(loaded: LoadedRun, scene: Scene, *, source: str = "surface", num_points: int = 1_000_000,
                             frame: str = "world", density_threshold: float | None = None,
                             refine_surface: bool = True, min_confidence: float = 0.0, voxel_size: float = 0.0,
                             remove_outliers: bool = False, std_ratio: float = 2.0, obb=None, min_points: int = 0,
@@ -142,9 +164,9 @@ def extract_labelled_points(loaded, scene, *, source: str = "surface", num_point
 
     Parameters
     ----------
-    loaded : lift3d.train.trainer.LoadedRun
-        From :func:`lift3d.train.trainer.load_run`.
-    scene : lift3d.data.scene.Scene
+    loaded : LoadedRun
+        From :func:`lift3d.model.run.load_run`.
+    scene : Scene
         The run's scene (``loaded.scene()``): training cameras decide visibility and ray origins.
     source : {"surface", "rays"}
     num_points : int
@@ -177,9 +199,6 @@ def extract_labelled_points(loaded, scene, *, source: str = "surface", num_point
     -------
     LabelledPoints
     """
-    from lift3d.export.instances import assign_instances, voxel_downsample_majority
-    from lift3d.export.mesh import _check_frame, to_frame, world_from_normalized
-
     _check_frame(frame)
     if source not in ("surface", "rays"):
         raise InputError("--source", f"unknown source {source!r} (surface or rays)")
@@ -192,8 +211,6 @@ def extract_labelled_points(loaded, scene, *, source: str = "surface", num_point
     if std_ratio <= 0:
         raise InputError("--std-ratio", f"must be > 0, got {std_ratio}")
     if device is not None:
-        from lift3d.utils.device import resolve_device
-
         loaded.model.to(resolve_device(device))
     timings: dict[str, float] = {}
     start = time.perf_counter()
@@ -281,19 +298,14 @@ def typical_spacing(xyz: np.ndarray, sample: int = 20000, seed: int = 0) -> floa
 
 
 # ------------------------------------------------------------------------------------------ sources
-def surface_resolution(loaded) -> int:
-    """Isosurface grid cells per axis for point clouds: the field's finest grid resolution, in [128, 256]."""
-    return int(np.clip(int(loaded.cfg.field.grid_max_resolution or 128), 128, 256))
+def surface_resolution(loaded: LoadedRun) -> int:
+    """Isosurface grid cells per axis for point clouds: the field's finest lattice, in [128, 256]."""
+    return int(np.clip(lattice_resolution(loaded.model), 128, 256))
 
 
-def _surface_points(loaded, scene, num_points: int, density_threshold, progress: bool,
+def _surface_points(loaded: LoadedRun, scene: Scene, num_points: int, density_threshold, progress: bool,
                     timings: dict[str, float], refine: bool = True) -> dict[str, Any]:
     """Area-uniform samples on the seen part of the isosurface, labelled by the heads."""
-    from lift3d.export.instances import query_point_labels
-    from lift3d.export.mesh import (CameraVisibility, choose_density_threshold, field_isosurface, normalized_cameras,
-                                    refine_to_rendered_surface, train_frames, view_directions)
-    from lift3d.field.encodings import uncontract
-
     model = loaded.model
     t = time.perf_counter()
     if density_threshold is None:
@@ -354,13 +366,9 @@ def _surface_points(loaded, scene, num_points: int, density_threshold, progress:
             "surface": {"faces": int(len(surface.faces)), "seen_faces": int(len(seen)), **surface.stats}}
 
 
-def _ray_points(loaded, scene, num_points: int, progress: bool, timings: dict[str, float]) -> dict[str, Any]:
+def _ray_points(loaded: LoadedRun, scene: Scene, num_points: int, progress: bool,
+                timings: dict[str, float]) -> dict[str, Any]:
     """Back-projected expected depth of random training rays with opacity > 0.5, labelled by the heads."""
-    import torch
-
-    from lift3d.export.instances import query_point_labels
-    from lift3d.export.mesh import train_frames
-
     model = loaded.model
     rays = loaded.rays(scene)
     frames = train_frames(scene)
@@ -395,7 +403,7 @@ def _ray_points(loaded, scene, num_points: int, progress: bool, timings: dict[st
     t = time.perf_counter()
     labels = query_point_labels(model, x, np.concatenate(dirs_kept), progress=progress)
     timings["heads"] = time.perf_counter() - t
-    field_voxel = 2.0 * (1.0 if model.bounded else 2.0) / max(int(loaded.cfg.field.grid_max_resolution), 1)
+    field_voxel = 2.0 * (1.0 if model.bounded else 2.0) / lattice_resolution(model)
     return {"x": x.astype(np.float64), "labels": labels, "rgb": np.concatenate(rgbs),
             "thresholds": {"opacity": RAY_OPACITY_THRESHOLD, "rays_rendered": drawn},
             "link_radius_normalized": 2.0 * field_voxel}
@@ -417,14 +425,6 @@ def benchmark_export(run_path, num_points: int = 1_000_000, output_dir=None) -> 
         ``write_seconds``, ``points``, ``threads`` (torch intra-op threads), ``stages`` (seconds per
         extraction stage).
     """
-    import tempfile
-    from pathlib import Path
-
-    import torch
-
-    from lift3d.data.ply import write_labelled_ply
-    from lift3d.train.trainer import load_run
-
     t0 = time.perf_counter()
     import open3d  # noqa: F401  (library import time is process start-up, reported apart)
     import pyvista  # noqa: F401

@@ -32,10 +32,16 @@ from typing import Any, Iterator, Sequence
 
 import numpy as np
 
+from lift3d.convert.predictions import load_categories, parse_categories
 from lift3d.data.images import read_rgb, write_label_map, write_panoptic_png
 from lift3d.data.scene import Category, Segment, load_scene
 from lift3d.errors import InputError
+from lift3d.label.classes import coco_sources, load_class_mapping, sources_from_categories, sources_from_labels
+from lift3d.label.mask2former import Mask2FormerLabeler, load_mask2former, load_mask2former_config
+from lift3d.label.predictions import convert_prediction, find_prediction, read_prediction
+from lift3d.label.tta import augmentations
 from lift3d.utils.atomic import write_bytes_atomic, write_json_atomic
+from lift3d.utils.device import resolve_device, set_threads
 from lift3d.utils.progress import progress_bar
 
 __all__ = ["label_with_model", "label_from_predictions", "LabelScene", "read_label_scene", "FrameLabels"]
@@ -146,7 +152,6 @@ def _gt_categories(root: Path, meta: dict) -> dict[int, Category]:
     gt_json = root / "gt" / "panoptic.json"
     if not gt_json.is_file():
         return {}
-    from lift3d.convert.predictions import parse_categories
 
     raw = _read_json(gt_json)
     cats_raw = meta.get("categories") or (raw.get("categories") if isinstance(raw, dict) else None)
@@ -369,17 +374,11 @@ def label_with_model(scene_dir: str | Path, model: str | Path, *, classes: str |
     dict
         Statistics of what was written (see :func:`write_labels`) plus ``seconds``, ``classes``, ``passes``.
     """
-    from lift3d.label.mask2former import Mask2FormerLabeler, load_mask2former, load_mask2former_config
-    from lift3d.label.tta import augmentations
-    from lift3d.utils.device import resolve_device, set_threads
-
     t0 = time.perf_counter()
     if batch_size < 1:
         raise InputError("--batch-size", f"must be at least 1 (got {batch_size})")
     scene = read_label_scene(scene_dir)
     if labeler is None:
-        from lift3d.label.classes import load_class_mapping, sources_from_labels
-
         dev = resolve_device(device)
         if dev.type == "cpu":
             set_threads()
@@ -439,17 +438,12 @@ def label_from_predictions(scene_dir: str | Path, predictions_dir: str | Path, *
     dict
         As :func:`write_labels`, plus ``seconds``, ``classes`` and ``source``.
     """
-    from lift3d.label.classes import coco_sources, load_class_mapping, sources_from_categories
-    from lift3d.label.predictions import convert_prediction, find_prediction, read_prediction
-
     t0 = time.perf_counter()
     scene = read_label_scene(scene_dir)
     pred_dir = Path(predictions_dir)
     if not pred_dir.is_dir():
         raise InputError(pred_dir, "predictions folder not found")
     if prediction_categories is not None:
-        from lift3d.convert.predictions import load_categories
-
         sources = sources_from_categories(load_categories(prediction_categories))
         file_ids = {s.id: s.index for s in sources}
     else:

@@ -39,6 +39,7 @@ from typing import Any, Iterable, Mapping, Sequence
 
 import numpy as np
 
+from lift3d.convert.predictions import parse_categories
 from lift3d.data.scene import Category
 from lift3d.errors import InputError
 
@@ -462,8 +463,6 @@ def parse_classes(raw: Any, sources: Sequence[SourceClass], where: str | Path) -
     >>> [m.categories[t].name if t >= 0 else None for t in m.target_of[[56, 109, 131, 0]]]
     ['chair', 'wall', 'wall', None]
     """
-    from lift3d.convert.predictions import parse_categories
-
     if isinstance(raw, dict):
         raw = raw.get("categories")
     categories = parse_categories(raw, Path(str(where)))

@@ -28,6 +28,7 @@ from __future__ import annotations
 import colorsys
 import json
 import math
+import time
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Iterable, Sequence
@@ -37,10 +38,13 @@ import numpy as np
 
 from lift3d.data.cameras import Cameras, is_rigid
 from lift3d.data.images import write_label_map, write_panoptic_png, write_rgb
-from lift3d.data.scene import Category
+from lift3d.data.scene import Category, default_category_color
 from lift3d.errors import InputError
-from lift3d.render.images import FrameRender
+from lift3d.model.run import load_run
+from lift3d.render.images import FrameRender, render_frame
+from lift3d.render.rays import RayGenerator
 from lift3d.utils.atomic import write_json_atomic
+from lift3d.utils.progress import progress_bar
 
 __all__ = [
     "OUTPUTS",
@@ -217,10 +221,9 @@ def colorize_depth(depth: np.ndarray, near: float, far: float) -> np.ndarray:
 def categories_from_labels(semantic_ids: Sequence[int], thing_ids: Sequence[int]) -> list[Category]:
     """Categories when the run's scene folder is gone: ids from the checkpoint's label space, generic names
     and the same default colours the scene reader gives categories without a colour."""
-    from lift3d.data.scene import _default_color  # one rule for default colours in the whole package
-
     things = set(int(t) for t in thing_ids)
-    return [Category(int(c), f"class_{int(c)}", int(c) in things, _default_color(int(c))) for c in semantic_ids]
+    return [Category(int(c), f"class_{int(c)}", int(c) in things, default_category_color(int(c)))
+            for c in semantic_ids]
 
 
 # --------------------------------------------------------------------------------------- writer
@@ -593,13 +596,6 @@ def render_to_folder(
     -------
     RenderResult
     """
-    import time
-
-    from lift3d.render.images import render_frame
-    from lift3d.render.rays import RayGenerator
-    from lift3d.train.trainer import load_run
-    from lift3d.utils.progress import progress_bar
-
     if downscale < 1:
         raise InputError("--downscale", f"must be a positive integer (got {downscale})")
     if chunk_size is not None and chunk_size < 1:

@@ -23,7 +23,7 @@ class RayGenerator:
         The cameras (OpenGL camera-to-world in *world* units).
     c2w_normalized : np.ndarray
         ``[F, 4, 4]`` the same poses in normalised coordinates (OpenGL axes), see
-        :meth:`lift3d.train.normalization.SceneNormalization.c2w_normalized`.
+        :meth:`lift3d.model.normalization.SceneNormalization.c2w_normalized`.
     device : torch.device
     """
 

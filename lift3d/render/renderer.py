@@ -1,8 +1,8 @@
 """How rays combine points: proposal sampling, the field at the final samples, compositing.
 
 :func:`render_rays` renders one batch (training) and :func:`render_rays_chunked` any number of rays
-without gradients (evaluation, export). The field is anything with ``geometry``, ``color`` and ``labels``
-(see :mod:`lift3d.field.field`).
+without gradients (evaluation, export). The field is a :class:`lift3d.field.base.Field` (its ``space``,
+``geometry``, ``color`` and ``labels``).
 
 Speed on CPU (PERFORMANCE.md): density is needed at every sample, but the colour, semantic and instance
 decoders only matter where a sample has weight; they run only on samples with ``w > head_weight_threshold``
@@ -17,8 +17,10 @@ import torch
 from torch import Tensor, nn
 from torch.profiler import record_function
 
+from lift3d.field.base import Field
 from lift3d.render.samplers import interlevel_loss, ray_aabb, sample_pdf, spacing_fn, spacing_fn_inv, uniform_edges
 from lift3d.render.volume import composite, interval_midpoints, render_weights
+from lift3d.utils.progress import progress_bar
 
 
 @dataclass
@@ -91,7 +93,7 @@ def near_far(origins: Tensor, dirs: Tensor, cfg: SamplingConfig, bounded: bool) 
 
 
 def render_rays(
-    field: nn.Module,
+    field: Field,
     proposals: nn.ModuleList,
     origins: Tensor,
     dirs: Tensor,
@@ -109,10 +111,10 @@ def render_rays(
 
     Parameters
     ----------
-    field : nn.Module
-        A :class:`~lift3d.field.field.PanopticField` (or anything with its interface).
+    field : Field
+        The field (any kind).
     proposals : nn.ModuleList
-        :class:`~lift3d.field.field.ProposalGrid` per proposal level (may be empty).
+        :class:`~lift3d.field.layers.ProposalGrid` per proposal level (may be empty).
     origins, dirs : Tensor
         ``[R, 3]`` ray origins and unit directions, normalised scene coordinates.
     cfg : SamplingConfig
@@ -269,7 +271,7 @@ def _scatter_rows(values: Tensor, idx: Tensor, n: int) -> Tensor:
 
 @torch.no_grad()
 def render_rays_chunked(
-    field: nn.Module,
+    field: Field,
     proposals: nn.ModuleList,
     origins: Tensor,
     dirs: Tensor,
@@ -288,8 +290,6 @@ def render_rays_chunked(
         ``rgb`` ``[R, 3]``, ``depth`` ``[R]``, ``opacity`` ``[R]`` and with labels ``semantic`` ``[R, U]``
         and ``instance`` ``[R, V]`` *probabilities* (softmax of the composited logits).
     """
-    from lift3d.utils.progress import progress_bar
-
     chunk = chunk_size or cfg.chunk_size
     outs: dict[str, list[Tensor]] = {}
     starts = range(0, origins.shape[0], chunk)

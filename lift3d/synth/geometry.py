@@ -29,6 +29,7 @@ from pathlib import Path
 
 import numpy as np
 
+from lift3d.data.ply import read_labelled_ply
 from lift3d.data.scene import Category
 from lift3d.utils.geometry import vertex_normals
 
@@ -174,8 +175,6 @@ def rotation_z(yaw: float) -> np.ndarray:
 def example_mesh(name: str, material: int) -> Mesh:
     """A mesh shipped inside PyVista's ``examples`` folder (``airplane``, ``ant``, ``nut``), read from the
     installed package with plyfile (no download, and no PyVista import, which takes half a second)."""
-    from lift3d.data.ply import read_labelled_ply
-
     spec = importlib.util.find_spec("pyvista")
     if spec is None or not spec.submodule_search_locations:
         raise RuntimeError("pyvista is not installed: its example meshes are part of the synthetic scenes")

@@ -8,66 +8,14 @@ Frames may differ in size (the pixels of all frames are concatenated).
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import numpy as np
 import torch
-from torch import Tensor
 
 from lift3d.data.scene import Scene
+from lift3d.model.labels import LabelSpace
+from lift3d.model.loss_terms import RayBatch
 from lift3d.render.rays import RayGenerator
 from lift3d.utils.progress import progress_bar
-
-
-@dataclass
-class LabelSpace:
-    """The semantic channels of the field: channel 0 is void (never a training target, never predicted),
-    channel ``k ≥ 1`` is category ``semantic_ids[k - 1]``."""
-
-    semantic_ids: list[int]
-    thing_ids: list[int]
-
-    @property
-    def num_channels(self) -> int:
-        return len(self.semantic_ids) + 1
-
-    def category_to_channel(self) -> np.ndarray:
-        """Lookup table ``category id → channel`` (0 for void and unknown ids)."""
-        lut = np.zeros(max(self.semantic_ids + [0]) + 1, np.int16)
-        lut[self.semantic_ids] = np.arange(1, len(self.semantic_ids) + 1)
-        return lut
-
-    def channel_to_category(self) -> np.ndarray:
-        """``[U]`` category id per channel (0 for the void channel)."""
-        return np.asarray([0] + list(self.semantic_ids), np.int64)
-
-    def thing_channels(self) -> np.ndarray:
-        """``[U]`` bool: channel is a thing class."""
-        return np.isin(self.channel_to_category(), self.thing_ids) & (self.channel_to_category() > 0)
-
-    def to_dict(self) -> dict:
-        return {"semantic_ids": list(map(int, self.semantic_ids)), "thing_ids": list(map(int, self.thing_ids))}
-
-    @classmethod
-    def from_dict(cls, d: dict) -> "LabelSpace":
-        return cls([int(x) for x in d["semantic_ids"]], [int(x) for x in d["thing_ids"]])
-
-
-@dataclass
-class Batch:
-    """One training step's rays. The first ``n_patch_rays`` rays are patches, image by image, row-major."""
-
-    origins: Tensor  # [R, 3]
-    dirs: Tensor  # [R, 3]
-    rgb: Tensor  # [R, 3] float in [0, 1]
-    semantic: Tensor  # [R] int64 channel, 0 = void
-    instance: Tensor  # [R] int64 per-image 2D instance id, 0 = none
-    segment: Tensor  # [R] int64 per-image 2D segment id, 0 = void
-    confidence: Tensor | None  # [R] float
-    image: Tensor  # [R] int64 frame index
-    depth: Tensor | None  # [R] float distance along the ray to the surface (normalised units), 0 = unknown
-    n_patch_rays: int
-    patch_size: int
 
 
 class TrainingData:
@@ -157,7 +105,7 @@ class TrainingData:
         return (counts / counts[1:].sum().clamp_min(1)).cpu().numpy()
 
     def sample(self, images_per_batch: int, rays_per_image: int, patch_size: int,
-               generator: torch.Generator) -> Batch:
+               generator: torch.Generator) -> RayBatch:
         """Draw ``images_per_batch`` frames; from each a ``patch_size²`` patch and ``rays_per_image`` random
         pixels (masked pixels are redrawn once and then dropped)."""
         dev = self.device
@@ -190,7 +138,7 @@ class TrainingData:
             u, v, f, flat = u[keep], v[keep], f[keep], flat[keep]
         scene_frame = torch.as_tensor(self.frames, device=dev)[f]
         origins, dirs, cos_axis = self.rays.rays(scene_frame, u, v)
-        return Batch(
+        return RayBatch(
             origins=origins,
             dirs=dirs,
             rgb=self.rgb[flat].float() / 255.0,

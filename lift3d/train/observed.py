@@ -3,7 +3,7 @@
 A dense grid starts with the same (opaque) density everywhere. Cells that no training ray crosses get no
 gradient, so space behind every camera keeps that density: a novel view from there looks into fog, and
 the export's isosurface wraps it. Like instant-NGP's marking of untrained cells, the field zeroes the
-density of lattice cells outside every training camera's frustum (:class:`lift3d.field.field.SceneSpace`).
+density of lattice cells outside every training camera's frustum (:class:`lift3d.field.space.SceneSpace`).
 """
 
 from __future__ import annotations
@@ -20,7 +20,7 @@ def observed_cells(space, cameras, frames, resolution: int, *, near: float, marg
 
     Parameters
     ----------
-    space : lift3d.field.field.SceneSpace
+    space : lift3d.field.space.SceneSpace
         Maps lattice cells to normalised scene points (contracted or not).
     cameras : lift3d.data.cameras.Cameras
         Cameras with poses in *normalised* coordinates.

@@ -24,28 +24,22 @@ from torch.profiler import record_function
 from lift3d import __version__
 from lift3d.data.scene import Scene, load_scene
 from lift3d.errors import InputError, TrainingDiverged
+from lift3d.eval.evaluate import compute_2d_metrics, frame_psnrs, gt_labels, pseudo_labels, render_split
+from lift3d.eval.metrics import psnr
 from lift3d.field import grids
-from lift3d.render.images import render_frame
+from lift3d.model.config import Config, config_from_dict, load_config, load_yaml, save_config, update_dataclass
+from lift3d.model.labels import LabelSpace
+from lift3d.model.normalization import SceneNormalization, derive_grid_resolution, infer_normalization
+from lift3d.model.panoptic import PanopticModel, count_parameters
+from lift3d.model.perceptual import build_perceptual_prior
+from lift3d.model.run import LoadedRun
+from lift3d.model.run_folder import RunFolder
 from lift3d.render.rays import RayGenerator
-from lift3d.train.config import Config, config_from_dict, load_config, load_yaml, save_config
-from lift3d.train.data import LabelSpace, TrainingData
+from lift3d.render.renderer import RenderOutputs
+from lift3d.train.data import TrainingData
 from lift3d.train.distributed import DistContext, all_ranks_agree, broadcast_object, init_distributed, shutdown
-from lift3d.train.losses import (
-    charbonnier_loss,
-    depth_loss,
-    disparity_loss,
-    distortion_loss,
-    feature_loss,
-    instance_loss,
-    segment_consistency_loss,
-    segment_groups,
-    semantic_loss,
-)
-from lift3d.train.model import PanopticModel, count_parameters
 from lift3d.train.observed import observed_cells
-from lift3d.train.normalization import SceneNormalization, derive_grid_resolution, infer_normalization
-from lift3d.train.run import RunFolder
-from lift3d.utils.device import resolve_device, set_threads
+from lift3d.utils.device import available_cpus, resolve_device, set_threads
 from lift3d.utils.memory import peak_rss_mb
 from lift3d.utils.progress import progress_bar
 
@@ -63,10 +57,8 @@ def resolve_config(scene: Scene, preset: str, overrides: dict | None) -> tuple[C
         why_bounded += f"; overridden by field.contraction={cfg.field.contraction}"
         norm.bounded = cfg.field.contraction == "none"
     notes = {"bounded": norm.bounded, "why_bounded": why_bounded, "kind_defaults": kind}
-    if cfg.field.grid_max_resolution <= 0:
-        res, why = derive_grid_resolution(scene, norm, cfg.field.grid_resolution_cap, cfg.field.grid_min_resolution)
-        cfg.field.grid_max_resolution = res
-        notes["why_grid_resolution"] = why
+    notes.update(cfg.field.kind_config.derive_sizes(
+        lambda cap, minimum: derive_grid_resolution(scene, norm, cap, minimum)))
     cfg.scene = {"data": str(scene.root.resolve()), "name": scene.name, **notes,
                  "normalization": norm.to_json()}
     return cfg, norm
@@ -98,51 +90,6 @@ def resolve_label_sizes(cfg: Config, data: TrainingData) -> None:
     cfg.scene.update(labels=labels.to_dict(), why_instance_channels=why_v,
                      max_instances_per_frame=int(data.max_instances_per_frame),
                      depth_supervision=data.depth is not None)
-
-
-# ------------------------------------------------------------------------------------------ loading runs
-@dataclass
-class LoadedRun:
-    """A trained run ready to render: model, configuration, normalisation, labels and its scene."""
-
-    run: RunFolder
-    cfg: Config
-    model: PanopticModel
-    norm: SceneNormalization
-    labels: LabelSpace
-    step: int
-    device: torch.device
-
-    def scene(self, data: str | Path | None = None) -> Scene:
-        path = Path(data) if data else Path(self.cfg.scene.get("data", ""))
-        if not path.is_dir():
-            raise InputError(path, "the run's scene folder is gone (pass --data to point at it)")
-        return load_scene(path)
-
-    def rays(self, scene: Scene) -> RayGenerator:
-        return RayGenerator(scene.cameras, self.norm.c2w_normalized(scene.cameras.c2w), self.device)
-
-
-def model_from_state(state: dict, device: torch.device) -> tuple[Config, PanopticModel, SceneNormalization, LabelSpace]:
-    cfg = config_from_dict(state["config"], "checkpoint")
-    labels = LabelSpace.from_dict(state["labels"])
-    norm = SceneNormalization.from_json(state["normalization"])
-    model = PanopticModel(cfg, labels).to(device)
-    model.load_state_dict(state["model"])
-    model.eval()
-    return cfg, model, norm, labels
-
-
-def load_run(path: str | Path, device: str = "auto") -> LoadedRun:
-    """Load the newest readable checkpoint of a run folder."""
-    run = RunFolder.open(path)
-    dev = resolve_device(device)
-    state = run.load_latest_checkpoint(map_location=dev)
-    try:
-        cfg, model, norm, labels = model_from_state(state, dev)
-    except (KeyError, RuntimeError) as exc:
-        raise InputError(state.get("_path", run.checkpoint_dir), f"checkpoint does not match this lift3d ({exc})") from exc
-    return LoadedRun(run, cfg, model, norm, labels, int(state["step"]), dev)
 
 
 # ------------------------------------------------------------------------------------------ training
@@ -220,8 +167,6 @@ class Trainer:
         self._first_loss: float | None = None  # reference for the divergence check
         self.perceptual = None
         if cfg.losses.feature > 0 and cfg.data.patch_size > 0:
-            from lift3d.train.perceptual import build_perceptual_prior
-
             self.perceptual = build_perceptual_prior(cfg.trainer.feature_weights).to(device)
         self.eval_frames = self._pick_eval_frames()
 
@@ -267,68 +212,24 @@ class Trainer:
             torch.set_rng_state(state["rng"]["cpu"])
 
     # ---------------------------------------------------------------- one step
-    def losses(self, batch) -> dict[str, torch.Tensor]:
-        cfg = self.cfg.losses
-        with_labels = cfg.semantic > 0 or cfg.instance > 0 or cfg.segment > 0
-        self._set_active_levels()
+    def losses(self, batch) -> tuple[dict[str, torch.Tensor], RenderOutputs]:
+        """The model's weighted loss terms of one batch and their sum ``total``; and the render they score."""
+        progress = training_progress(self.step, self.cfg, self.elapsed())
+        self.model.field.set_training_progress(progress)
         anneal_steps = self.cfg.sampling.proposal_anneal_steps
         anneal = min(1.0, self.step / anneal_steps) if anneal_steps > 0 else 1.0
-        depth_target = batch.depth if cfg.depth > 0 else None
-        out = self.forward_model(batch.origins, batch.dirs, training=True, with_labels=with_labels,
+        depth_target = batch.depth if self.cfg.losses.depth > 0 else None
+        out = self.forward_model(batch.origins, batch.dirs, training=True, with_labels=self.model.trains_labels,
                                  generator=self.generator, proposal_anneal=anneal, depth_target=depth_target)
-        conf = batch.confidence if cfg.use_confidence else None
-        terms: dict[str, torch.Tensor] = {"color": charbonnier_loss(out.rgb, batch.rgb, cfg.charbonnier_eps)}
-        if len(self.model.proposals):
-            terms["distill"] = out.distill
-        if cfg.semantic > 0:
-            terms["semantic"] = semantic_loss(out.semantic, batch.semantic, conf)
-        if cfg.instance > 0 and out.instance is not None:
-            terms["instance"] = instance_loss(out.instance, batch.instance, batch.image, conf)
-        if cfg.segment > 0 and training_progress(self.step, self.cfg, self.elapsed()) >= cfg.segment_start:
-            groups = segment_groups(batch.image, batch.segment, cfg.segment_min_rays)
-            terms["segment"] = segment_consistency_loss(out.semantic, groups, conf)
-        if self.perceptual is not None and batch.n_patch_rays > 0:
-            ps = batch.patch_size
-            pred = out.rgb[: batch.n_patch_rays].view(-1, ps, ps, 3).permute(0, 3, 1, 2)
-            obs = batch.rgb[: batch.n_patch_rays].view(-1, ps, ps, 3).permute(0, 3, 1, 2)
-            with torch.no_grad():
-                f_obs = self.perceptual(obs)
-            terms["feature"] = feature_loss(self.perceptual(pred), f_obs)
-        if cfg.regularization > 0:
-            grids_ = self.model.field.grids
-            if grids_:
-                terms["tv"] = torch.stack([g.total_variation(cfg.tv_samples, self.generator) for g in grids_]).mean()
-            terms["disparity"] = disparity_loss(out.weights, out.t_mid)
-        if cfg.depth > 0 and batch.depth is not None:
-            terms["depth"] = depth_loss(out.weights, out.t_mid, batch.depth, cfg.depth_margin)
-        if cfg.distortion > 0:
-            terms["distortion"] = distortion_loss(out.weights, out.s_edges)
-        weights = {"color": cfg.color, "distill": cfg.distill, "semantic": cfg.semantic, "instance": cfg.instance,
-                   "segment": cfg.segment, "feature": cfg.feature, "tv": cfg.regularization,
-                   "disparity": cfg.regularization, "distortion": cfg.distortion, "depth": cfg.depth}
-        terms["total"] = sum(weights[k] * v for k, v in terms.items())
-        with torch.no_grad():
-            mse = ((out.rgb - batch.rgb) ** 2).mean()
-            terms["psnr"] = -10.0 * torch.log10(mse.clamp_min(1e-10))
-        return terms
+        terms = self.model.get_loss_dict(out, batch, progress=progress, generator=self.generator,
+                                         perceptual=self.perceptual)
+        terms["total"] = sum(terms.values())
+        return terms, out
 
     def elapsed(self) -> float:
         """Seconds of training so far (including earlier processes of a resumed run)."""
         now = time.perf_counter() - self._fit_start if self._fit_start is not None else 0.0
         return self.train_seconds + now
-
-    def _set_active_levels(self) -> None:
-        """Coarse-to-fine: the geometry grid's level ``l`` switches on at ``l/(L-1)`` of the schedule."""
-        grid = getattr(self.model.field, "grid", None)
-        if grid is None:
-            return
-        levels = len(grid.resolutions)
-        frac = self.cfg.field.coarse_to_fine
-        if frac <= 0 or levels == 1:
-            grid.active_levels = levels
-            return
-        progress = training_progress(self.step, self.cfg, self.elapsed()) / frac
-        grid.active_levels = int(min(levels, 1 + math.floor(progress * (levels - 1))))
 
     def train_step(self) -> dict[str, float] | None:
         """One optimisation step; None when the loss was not finite (the step is skipped)."""
@@ -342,7 +243,7 @@ class Trainer:
         # Keep gradient buffers allocated: the grid lookups add into them in place (see field.grids).
         self.optimizer.zero_grad(set_to_none=False)
         with record_function("step.forward_and_losses"):
-            terms = self.losses(batch)
+            terms, out = self.losses(batch)
         total = terms["total"]
         good = bool(torch.isfinite(total))
         factor = self.cfg.optim.divergence_factor
@@ -357,29 +258,27 @@ class Trainer:
             total.backward()
         with record_function("step.optimizer"):
             self.optimizer.step()
-        return {k: float(v.detach()) for k, v in terms.items()}
+        logged = {k: float(v.detach()) for k, v in terms.items()}
+        logged["psnr"] = psnr(out.rgb.detach().cpu().numpy(), batch.rgb.cpu().numpy())
+        return logged
 
     # ---------------------------------------------------------------- evaluation
-    def evaluate(self, frames: list[int] | None = None) -> dict[str, float]:
-        """Quick held-out metrics: PSNR, and mIoU / PQ^scene against GT (or the pseudo-labels without GT)."""
-        from lift3d.eval.metrics import miou, pq_scene, psnr
+    def as_loaded_run(self) -> LoadedRun:
+        """The model being trained, as a :class:`~lift3d.model.run.LoadedRun` (what evaluation renders)."""
+        return LoadedRun(self.run, self.cfg, self.model, self.norm, self.data.labels, self.step, self.device)
 
+    def evaluate(self, frames: list[int] | None = None) -> dict[str, float]:
+        """Quick held-out metrics through :mod:`lift3d.eval`: PSNR, and mIoU / PQ^scene against GT (or the
+        pseudo-labels without GT)."""
         frames = self.eval_frames if frames is None else frames
         if not frames:
             return {}
-        preds, gts, psnrs = [], [], []
+        rendered = render_split(self.as_loaded_run(), self.scene, frames, progress=False)
         use_gt = self.scene.has_gt
-        for i in frames:
-            r = render_frame(self.model, self.rays, i, self.norm.scale)
-            psnrs.append(psnr(r.rgb, self.scene.image(i).astype(np.float32) / 255.0))
-            lab = self.scene.gt_labels(i) if use_gt else self.scene.pseudo_labels(i)
-            preds.append((r.semantic, r.instance))
-            gts.append((lab.semantic, lab.instance))
-        ps, pi = np.stack([p[0] for p in preds]), np.stack([p[1] for p in preds])
-        gs, gi = np.stack([g[0] for g in gts]), np.stack([g[1] for g in gts])
-        pq = pq_scene(ps, pi, gs, gi, self.scene.thing_ids, self.scene.stuff_ids)
-        return {"psnr": float(np.mean(psnrs)), "miou": float(miou(ps, gs)["miou"]), "pq_scene": float(pq["pq"]),
-                "against": "gt" if use_gt else "pseudo_labels"}
+        target = gt_labels(self.scene, frames) if use_gt else pseudo_labels(self.scene, frames)
+        m = compute_2d_metrics(rendered.labels(), target, self.scene.thing_ids, self.scene.stuff_ids)
+        return {"psnr": float(np.mean(frame_psnrs(self.scene, rendered))), "miou": float(m["miou"]),
+                "pq_scene": float(m["pq_scene"]), "against": "gt" if use_gt else "pseudo_labels"}
 
     def replicas_identical(self) -> bool:
         """Every rank holds the same parameters (DDP keeps them in sync; checked once at the end)."""
@@ -507,8 +406,6 @@ def _train(data, preset, output_dir, overrides, resume, progress, print_summary,
         run = RunFolder.open(resume)
         cfg = config_from_dict(load_yaml(run.config_path), str(run.config_path))
         if overrides:
-            from lift3d.train.config import update_dataclass
-
             allowed = {k: v for k, v in overrides.items() if k in ("trainer",)}
             if "optim" in overrides and "steps" in overrides["optim"]:
                 allowed["optim"] = {"steps": overrides["optim"]["steps"]}
@@ -547,6 +444,7 @@ def _train(data, preset, output_dir, overrides, resume, progress, print_summary,
     if ctx.is_main:
         save_config(cfg, run.config_path)
     result.summary["parameters"] = count_parameters(trainer.model)
+    result.summary["finest_resolution"] = trainer.model.field.finest_resolution
     result.summary["depth_supervision"] = trainer.data.depth is not None
     if print_summary and ctx.is_main:
         print(format_summary(result, cfg))
@@ -555,10 +453,12 @@ def _train(data, preset, output_dir, overrides, resume, progress, print_summary,
 
 def _cpu_share(ctx: DistContext) -> int:
     """CPU threads per rank when several ranks share one machine (avoid oversubscription)."""
-    from lift3d.utils.device import available_cpus
-
     local_world = int(os.environ.get("LOCAL_WORLD_SIZE", ctx.world_size))
     return max(1, available_cpus() // max(1, local_world))
+
+
+def _finest(resolution: int) -> str:
+    return f", grid {resolution}^3" if resolution else ""
 
 
 def format_summary(result: TrainResult, cfg: Config) -> str:
@@ -568,7 +468,7 @@ def format_summary(result: TrainResult, cfg: Config) -> str:
         f"lift3d train: {result.steps} steps in {result.seconds:.0f} s "
         f"({result.steps / max(result.seconds, 1e-9):.1f} steps/s), peak memory {result.peak_rss_mb:.0f} MB",
         f"  run folder     {result.run.path}",
-        f"  model          {cfg.field.kind}, grid {cfg.field.grid_max_resolution}^3, "
+        f"  model          {cfg.field.kind}{_finest(result.summary.get('finest_resolution', 0))}, "
         f"U={cfg.field.num_semantic_classes}, V={cfg.field.num_instance_channels}, "
         f"{'bounded' if cfg.field.contraction == 'none' else 'unbounded (' + cfg.field.contraction + ')'}"
         f"{', depth-supervised' if cfg.scene.get('depth_supervision') else ''}",

@@ -37,8 +37,9 @@ from typing import Any
 import numpy as np
 
 from lift3d.utils.atomic import write_text_atomic
+from lift3d.utils.geometry import vertex_normals
 from lift3d.viz.palette import INSTANCE_NONE, as_classes, instance_color, semantic_color, stuff_tint
-from lift3d.viz.points import _resolve_hidden, _with_files_beside, as_geometry
+from lift3d.viz.points import _axis, _resolve_hidden, _with_files_beside, as_geometry
 
 #: Points embedded at most (a random subset beyond; about 16 bytes of page per point).
 MAX_POINTS = 400_000
@@ -72,8 +73,6 @@ def write_html(points_or_path: Any, path: str | Path, *, classes: Any = None, up
     -------
     Path
     """
-    from lift3d.viz.points import _axis
-
     geom = as_geometry(points_or_path)
     found = _with_files_beside(geom, {"classes": classes}).get("classes")
     table = as_classes(found) if found is not None else []
@@ -104,8 +103,6 @@ def write_html(points_or_path: Any, path: str | Path, *, classes: Any = None, up
         "pointSize": float(point_size or np.clip(700.0 / np.sqrt(max(len(xyz), 1)), 1.5, 6.0)),
     }
     if geom.is_mesh:
-        from lift3d.utils.geometry import vertex_normals
-
         data["indices"] = _b64(np.asarray(geom.faces, "<u4"))
         data["normals"] = _b64(np.asarray(vertex_normals(xyz, geom.faces), "<f4"))
     name = title or (geom.source.name if geom.source is not None else "labelled geometry")

@@ -42,7 +42,9 @@ from typing import Any, Iterable, Mapping, Sequence
 
 import numpy as np
 
+from lift3d.data.ply import read_labelled_ply
 from lift3d.errors import InputError
+from lift3d.utils.atomic import write_bytes_atomic
 from lift3d.viz.palette import (
     INSTANCE_NONE,
     ClassInfo,
@@ -186,8 +188,6 @@ def as_geometry(points_or_path: Any) -> LabelledGeometry:
         return points_or_path
     source: Path | None = None
     if isinstance(points_or_path, (str, Path)):
-        from lift3d.data.ply import read_labelled_ply
-
         source = Path(points_or_path)
         obj: Any = read_labelled_ply(source)
     else:
@@ -816,8 +816,6 @@ def save_views(points_or_path: Any, output_dir: str | Path, views: Sequence[str]
     list of Path
         The PNGs, in the order of ``views``; each written atomically.
     """
-    from lift3d.utils.atomic import write_bytes_atomic
-
     for v in views:
         if v not in VIEWS:
             raise InputError("--views", f"unknown view {v!r} (choose from {', '.join(VIEWS)})")

@@ -25,7 +25,14 @@ from typing import Any, Sequence
 
 import numpy as np
 
+from lift3d.data.scene import Scene
 from lift3d.errors import InputError
+from lift3d.eval.metrics import psnr
+from lift3d.model.run import LoadedRun, load_run
+from lift3d.model.run_folder import RunFolder
+from lift3d.render.images import render_frame
+from lift3d.utils.atomic import write_bytes_atomic
+from lift3d.utils.progress import progress_bar
 from lift3d.viz.palette import as_classes, color_to_float, panoptic_color, semantic_color
 
 __all__ = ["FramePanels", "collect_frames", "pick_frames", "plot_frame_grid", "plot_curves", "plot_run",
@@ -52,8 +59,6 @@ def _pyplot():
 
 def save_figure(fig, path: str | Path, dpi: int = 100) -> Path:
     """Render a matplotlib figure to PNG bytes and write them atomically; closes the figure."""
-    from lift3d.utils.atomic import write_bytes_atomic
-
     plt = _pyplot()
     buf = io.BytesIO()
     try:
@@ -126,15 +131,15 @@ def _block_sample(arr: np.ndarray, d: int, shape: tuple[int, int]) -> np.ndarray
     return arr[o::d, o::d][: shape[0], : shape[1]]
 
 
-def collect_frames(loaded, scene, frames: Sequence[int], *, downscale: int = 1,
+def collect_frames(loaded: LoadedRun, scene: Scene, frames: Sequence[int], *, downscale: int = 1,
                    progress: bool = False) -> list[FramePanels]:
     """Render ``frames`` of a loaded run and gather photo, pseudo-label and GT beside each.
 
     Parameters
     ----------
-    loaded : lift3d.train.trainer.LoadedRun
-        From :func:`~lift3d.train.trainer.load_run`.
-    scene : lift3d.data.scene.Scene
+    loaded : LoadedRun
+        From :func:`~lift3d.model.run.load_run`.
+    scene : Scene
         The run's scene (``loaded.scene()``).
     frames : sequence of int
         Frame indices.
@@ -143,10 +148,6 @@ def collect_frames(loaded, scene, frames: Sequence[int], *, downscale: int = 1,
     progress : bool
         Show a progress bar.
     """
-    from lift3d.eval.metrics import psnr
-    from lift3d.render.images import render_frame
-    from lift3d.utils.progress import progress_bar
-
     rays = loaded.rays(scene)
     out = []
     for i in progress_bar(list(frames), desc="render views", disable=not progress, unit="frame"):
@@ -385,7 +386,7 @@ def plot_curves(records: Sequence[dict], path: str | Path, *, title: str | None 
         style = dict(color="black", lw=2.0) if k == "total" else dict(color=cmap(n % 10), lw=1.2)
         ax_loss.plot(steps[ok], y[ok], label=k, **style)
     ax_loss.set_yscale("log")
-    ax_loss.set_title("losses (weighted total and raw terms" +
+    ax_loss.set_title("losses (total and weighted terms" +
                       (f", moving average of {window} logs)" if window > 1 else ")"), fontsize=10)
     ax_loss.legend(fontsize=7, ncol=2)
 
@@ -449,9 +450,6 @@ def plot_run(run: str | Path, output_dir: str | Path | None = None, *, frames: i
     dict
         ``{"views": Path, "curves": Path}``.
     """
-    from lift3d.train.run import RunFolder
-    from lift3d.train.trainer import load_run
-
     if downscale < 1:
         raise InputError("--downscale", f"must be a positive integer (got {downscale})")
     if frames < 1:

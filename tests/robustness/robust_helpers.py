@@ -30,7 +30,7 @@ import pytest
 
 #: Tiny training settings (cf. tests/test_train.py::TINY, smaller still: no patches, no perceptual prior).
 TINY = {
-    "field": {"grid_resolution_cap": 24, "grid_min_resolution": 16, "grid_levels": 2, "head_hidden_dim": 32},
+    "field": {"grid": {"resolution_cap": 24, "min_resolution": 16, "levels": 2, "head_hidden_dim": 32}},
     "sampling": {"proposal_resolutions": [16], "proposal_samples": [24], "num_samples": 12},
     "data": {"images_per_batch": 2, "rays_per_image": 64, "patch_size": 0},
     "losses": {"feature": 0.0},
@@ -48,12 +48,20 @@ def tiny(**changes) -> dict:
 
 
 def tiny_flags(**changes) -> list[str]:
-    """:func:`tiny` as ``lift3d train`` flags (``--optim.steps 40 ...``)."""
+    """:func:`tiny` as ``lift3d train`` flags (``--optim.steps 40 --field.grid.levels 2 ...``)."""
     flags: list[str] = []
-    for section, values in tiny(**changes).items():
+
+    def add(path: str, values: dict) -> None:
+        nonlocal flags
         for key, value in values.items():
-            flag = f"--{section}.{key.replace('_', '-')}"
+            if isinstance(value, dict):  # a nested section, e.g. field.grid
+                add(f"{path}.{key}", value)
+                continue
+            flag = f"--{path}.{key.replace('_', '-')}"
             flags += [flag, *map(str, value)] if isinstance(value, list) else [flag, str(value)]
+
+    for section, values in tiny(**changes).items():
+        add(section, values)
     return flags
 
 

@@ -84,7 +84,7 @@ def test_disk_full_while_writing_metrics_keeps_the_old_metrics(healthy_run, tmp_
 def test_disk_full_while_appending_to_the_training_log_is_one_line(synth_scene, tmp_path, capfd, monkeypatch):
     """``log.jsonl`` is appended, not written atomically: an ENOSPC there is an ordinary OSError, which the
     CLI still reports as one line naming the file (the net in ``lift3d.cli.main``)."""
-    import lift3d.train.run as run_module
+    import lift3d.model.run_folder as run_module
 
     real_fsync = os.fsync
 

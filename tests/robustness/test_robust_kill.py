@@ -19,7 +19,7 @@ from pathlib import Path
 import pytest
 import torch
 
-from lift3d.train.run import RunFolder
+from lift3d.model.run_folder import RunFolder
 from robust_helpers import cli, cli_env, no_temp_files, tiny, tiny_flags
 
 #: ``python -c`` prelude: stall forever in ``os.fsync`` of any file whose name contains $LIFT3D_TEST_STALL

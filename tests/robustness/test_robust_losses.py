@@ -18,8 +18,8 @@ from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from hypothesis.extra import numpy as hnp
 
-from lift3d.train.assignment import instance_cost_matrix, linear_assign_instances
-from lift3d.train.losses import (
+from lift3d.model.assignment import instance_cost_matrix, linear_assign_instances
+from lift3d.model.losses import (
     charbonnier_loss,
     disparity_loss,
     feature_loss,
@@ -232,7 +232,7 @@ def test_single_ray_segments_and_void_never_become_targets():
     assert float(segment_consistency_loss(torch.randn(6, 3), groups, None)) == 0.0
     # A group whose predictions favour void (channel 0) by e^50 still gets a non-void target, finitely.
     # (At a gap of ~104 and more every non-void probability underflows to 0 in float32 and void does
-    # become the target: reported in docs/robustness.md, "known gaps", for lift3d/train/losses.py.)
+    # become the target: reported in docs/robustness.md, "known gaps", for lift3d/model/losses.py.)
     logits = torch.tensor([[50.0, 1.0, 0.0], [50.0, 0.0, 2.0], [50.0, 0.0, 2.5]], requires_grad=True)
     groups = segment_groups(torch.zeros(3, dtype=torch.long), torch.full((3,), 4), min_rays=3)
     loss = segment_consistency_loss(logits, groups, None)

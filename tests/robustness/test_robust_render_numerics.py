@@ -20,8 +20,10 @@ from hypothesis.extra import numpy as hnp
 from torch import nn
 
 from lift3d.field.encodings import contract
-from lift3d.field.field import FieldConfig, PanopticField, SceneSpace
+from lift3d.field.grid import GridField, GridFieldConfig
 from lift3d.field.grids import grid_lookup, grid_lookup_reference, trilinear_corners
+from lift3d.field.registry import FieldConfig
+from lift3d.field.space import SceneSpace
 from lift3d.render.renderer import SamplingConfig, near_far, render_rays
 from lift3d.render.volume import (
     composite,
@@ -181,11 +183,11 @@ def test_bfloat16_weights_close_to_float64(batch):
     assert (w.double().sum(-1) - ref.sum(-1)).abs().max() < 2e-2
 
 
-def _small_field(contraction: str, seed: int = 0) -> PanopticField:
+def _small_field(contraction: str, seed: int = 0) -> GridField:
     torch.manual_seed(seed)
-    cfg = FieldConfig(grid_max_resolution=16, grid_min_resolution=8, grid_levels=2, num_semantic_classes=5,
-                      num_instance_channels=4, contraction=contraction, head_hidden_dim=16)
-    return PanopticField(cfg)
+    cfg = FieldConfig(num_semantic_classes=5, num_instance_channels=4, contraction=contraction,
+                      grid=GridFieldConfig(max_resolution=16, min_resolution=8, levels=2, head_hidden_dim=16))
+    return GridField(cfg)
 
 
 @pytest.mark.parametrize("bounded", [True, False])

@@ -13,7 +13,7 @@ import pytest
 import torch
 
 from lift3d.data.scene import load_scene
-from lift3d.train.normalization import derive_grid_resolution, infer_normalization
+from lift3d.model.normalization import derive_grid_resolution, infer_normalization
 from robust_helpers import edit_json, scaled_scene, tiny
 
 SCALES = (1e-3, 1e3)

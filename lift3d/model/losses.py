@@ -1,6 +1,7 @@
 """Every loss of the paper as a pure function (PAPER.md "Losses").
 
-``L = L_color + 1.2 ΣL_distill + 0.1 L_sem + 0.1 L_ins + 0.12 L_seg + 0.2 L_feat + 0.001 (L_tv + L_disp)``
+``L = L_color + 1.2 ΣL_distill + 0.1 L_sem + 0.1 L_ins + 0.12 L_seg + 0.2 L_feat + 0.001 (L_tv + L_disp)``;
+the weights and which terms a training step uses are :mod:`lift3d.model.loss_terms`.
 
 Label tensors use *channel* space: semantic target ``k ≥ 1`` is a channel of the semantic head (0 = void,
 never a target; ``-1`` = ignore), instance ids are per-image compact 2D ids (0 = not a thing pixel).
@@ -8,55 +9,12 @@ never a target; ``-1`` = ignore), instance ids are per-image compact 2D ids (0 =
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import numpy as np
 import torch
 import torch.nn.functional as F
 from torch import Tensor
 
-from lift3d.train.assignment import linear_assign_instances
-
-
-@dataclass
-class LossConfig:
-    """Loss weights (paper defaults) and switches for ablations. A weight of 0 turns a loss off."""
-
-    color: float = 1.0
-    """L_color: Charbonnier photometric loss."""
-    charbonnier_eps: float = 1e-4
-    """ε of the Charbonnier loss."""
-    distill: float = 1.2
-    """L_distill: inter-level (proposal) distillation."""
-    semantic: float = 0.1
-    """L_sem: confidence-weighted semantic cross-entropy."""
-    instance: float = 0.1
-    """L_ins: instance cross-entropy after per-image linear assignment."""
-    segment: float = 0.12
-    """L_seg: segment-consistency loss over rays sharing a 2D segment."""
-    segment_min_rays: int = 4
-    """Smallest ray group (same image, same 2D segment) that L_seg uses."""
-    segment_start: float = 0.3
-    """Fraction of the training steps before L_seg starts: its target is the field's own dominant class, so
-    switched on from step 0 it locks in whatever class the untrained field happens to favour."""
-    feature: float = 0.2
-    """L_feat: perceptual-prior feature loss on rendered vs observed patches."""
-    regularization: float = 0.001
-    """Weight of L_tv + L_disp."""
-    distortion: float = 0.0
-    """L_dist (mip-NeRF 360's distortion loss; not in the paper, so 0 by default): pulls each ray's weight
-    into one compact interval. Textureless walls otherwise stay a metre-deep fog whose colour matches from
-    every view, which renders fine but puts the exported surface in the wrong place."""
-    depth: float = 0.0
-    """L_depth (not in the paper): supervision from the scene's depth maps (``depth_file_path``, e.g. an
-    RGB-D sensor) where they exist; 0 = RGB only. See :func:`depth_loss`."""
-    depth_margin: float = 0.02
-    """Half-width (normalised units) of the band around the measured depth in which L_depth lets weight
-    sit; about 7 cm in a 7 m room."""
-    tv_samples: int = 4096
-    """Grid nodes per level and axis sampled for L_tv each step."""
-    use_confidence: bool = True
-    """Weight label losses by the pseudo-label confidence λ_p (segment score × pixel confidence)."""
+from lift3d.model.assignment import linear_assign_instances
 
 
 def charbonnier_loss(pred: Tensor, target: Tensor, eps: float = 1e-4) -> Tensor:

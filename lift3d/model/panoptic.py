@@ -1,15 +1,17 @@
-"""The trained object: field + proposal grids + what the scene fixed (label space, normalisation)."""
+"""The trained object: field + proposal grids + what the scene fixed (label space), and its loss."""
 
 from __future__ import annotations
 
 import torch
 from torch import Tensor, nn
 
-from lift3d.field.field import ProposalGrid, build_field
 from lift3d.field.grids import DenseGrid
+from lift3d.field.layers import ProposalGrid
+from lift3d.field.registry import build_field
+from lift3d.model.config import Config
+from lift3d.model.labels import LabelSpace
+from lift3d.model.loss_terms import LossInputs, RayBatch, compute_loss_terms, needs_labels
 from lift3d.render.renderer import RenderOutputs, render_rays, render_rays_chunked
-from lift3d.train.config import Config
-from lift3d.train.data import LabelSpace
 
 
 class PanopticModel(nn.Module):
@@ -41,15 +43,18 @@ class PanopticModel(nn.Module):
 
     @property
     def has_instances(self) -> bool:
-        return getattr(self.field, "instance_mlp", None) is not None
+        return self.field.has_instances
+
+    @property
+    def trains_labels(self) -> bool:
+        """Training renders composite label logits (a label loss is on)."""
+        return needs_labels(self.cfg.losses)
 
     def grid_parameters(self) -> list[nn.Parameter]:
-        """Parameters of dense grids (higher learning rate, in-place sparse gradients)."""
-        params = []
-        for m in self.modules():
-            if isinstance(m, DenseGrid):
-                params += list(m.parameters())
-        return params
+        """Parameters of dense grids (higher learning rate, in-place sparse gradients): the field's, then
+        the proposal grids'."""
+        proposal = [p for m in self.proposals.modules() if isinstance(m, DenseGrid) for p in m.parameters()]
+        return self.field.grid_parameters() + proposal
 
     def decoder_parameters(self) -> list[nn.Parameter]:
         grid_ids = {id(p) for p in self.grid_parameters()}
@@ -69,6 +74,26 @@ class PanopticModel(nn.Module):
         """Same as :meth:`render`; the entry point DistributedDataParallel wraps."""
         return self.render(origins, dirs, training=training, with_labels=with_labels, generator=generator,
                            proposal_anneal=proposal_anneal, depth_target=depth_target)
+
+    def get_loss_dict(self, outputs: RenderOutputs, batch: RayBatch, *, progress: float,
+                      generator: torch.Generator | None = None, perceptual: nn.Module | None = None) -> dict[str, Tensor]:
+        """The weighted loss terms of one training step (:mod:`lift3d.model.loss_terms`); their sum is the loss.
+
+        Parameters
+        ----------
+        outputs : RenderOutputs
+            This model's training render of ``batch``'s rays.
+        batch : RayBatch
+            Targets of the rays.
+        progress : float
+            Fraction of training done (terms that start late, e.g. L_seg, read it).
+        generator : torch.Generator, optional
+            Randomness of stochastic terms (L_tv samples grid nodes).
+        perceptual : nn.Module, optional
+            L_feat's frozen feature extractor (L_feat is off without it).
+        """
+        return compute_loss_terms(LossInputs(outputs, batch, self.cfg.losses, self.field, len(self.proposals) > 0,
+                                             progress, generator, perceptual))
 
     def render_chunked(self, origins: Tensor, dirs: Tensor, *, with_labels: bool = True,
                        chunk_size: int | None = None, progress: bool = False) -> dict[str, Tensor]:

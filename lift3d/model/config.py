@@ -7,8 +7,11 @@ A run's settings are resolved in this order (later wins)::
 and then sizes the scene determines (U, V, grid resolution, bounded/unbounded) are filled in where a
 field is 0/"auto". The fully resolved configuration is written to the run's ``config.yml``.
 
-Every leaf field is a flag, e.g. ``--optim.steps 2000``, ``--losses.feature 0``,
-``--field.understanding-resolutions 16 32``. The text under a field is its ``--help``.
+Every leaf field is a flag, e.g. ``--optim.steps 2000``, ``--losses.feature 0``; settings of a nested
+section have its name too, e.g. ``--field.grid.understanding-resolutions 16 32``. The text under a field is
+its ``--help``. Settings written before the field kinds had sections of their own (``field.grid_levels``,
+``field.head_hidden_dim``, ...) are read into their new place (:func:`upgrade_config_dict`), so older run
+folders and checkpoints keep loading.
 """
 
 from __future__ import annotations
@@ -28,9 +31,10 @@ from typing import Any
 import yaml
 
 from lift3d.errors import InputError
-from lift3d.field.field import FieldConfig
+from lift3d.field.registry import FIELD_KINDS, FieldConfig, upgrade_field_settings
+from lift3d.model.loss_terms import LossConfig
 from lift3d.render.renderer import SamplingConfig
-from lift3d.train.losses import LossConfig
+from lift3d.utils.atomic import write_text_atomic
 
 CONFIG_DIR = Path(__file__).resolve().parent.parent / "configs"
 PRESETS = ("fast", "balanced", "quality")
@@ -184,8 +188,24 @@ def update_dataclass(obj: Any, values: dict, where: str) -> Any:
     return dataclasses.replace(obj, **changes)
 
 
+def upgrade_config_dict(d: dict) -> dict:
+    """A settings mapping (config.yml, a checkpoint's config, a preset) in the current layout: the ``field``
+    keys of the old flat layout move into their kind's section (:func:`upgrade_field_settings`)."""
+    if isinstance(d, dict) and isinstance(d.get("field"), dict):
+        return {**d, "field": upgrade_field_settings(d["field"])}
+    return d
+
+
+def check_config(cfg: Config, where: str) -> Config:
+    """Settings no single field can check: ``field.kind`` names a registered kind."""
+    if cfg.field.kind not in FIELD_KINDS:
+        raise InputError(where, f"field.kind: unknown field kind {cfg.field.kind!r} (known: {', '.join(FIELD_KINDS)})")
+    return cfg
+
+
 def config_from_dict(d: dict, where: str = "config") -> Config:
-    return update_dataclass(Config(), d, where)
+    """A :class:`Config` from a (possibly old-layout) mapping such as a run's config.yml."""
+    return check_config(update_dataclass(Config(), upgrade_config_dict(d), where), where)
 
 
 def load_yaml(path: Path) -> dict:
@@ -223,18 +243,17 @@ def load_config(preset: str = "fast", kind: str | None = None, overrides: dict |
     """
     cfg = Config(preset=Path(preset).stem)
     path = preset_path(preset)
-    cfg = update_dataclass(cfg, {k: v for k, v in load_yaml(path).items()}, str(path))
+    cfg = update_dataclass(cfg, upgrade_config_dict(load_yaml(path)), str(path))
     if kind:
         kpath = preset_path(kind)
-        cfg = update_dataclass(cfg, load_yaml(kpath), str(kpath))
+        cfg = update_dataclass(cfg, upgrade_config_dict(load_yaml(kpath)), str(kpath))
     if overrides:
         cfg = update_dataclass(cfg, overrides, "command line")
-    return cfg
+    kind_from_flags = bool(overrides) and "kind" in (overrides.get("field") or {})
+    return check_config(cfg, "command line" if kind_from_flags else str(path))
 
 
 def save_config(cfg: Config, path: Path) -> None:
-    from lift3d.utils.atomic import write_text_atomic
-
     write_text_atomic(path, yaml.safe_dump(cfg.to_dict(), sort_keys=False))
 
 
@@ -257,32 +276,52 @@ def field_docs(cls: type) -> dict[str, str]:
 
 
 def add_config_flags(parser: argparse.ArgumentParser) -> None:
-    """One flag per leaf setting: ``--<section>.<field-name>`` (dest ``cfg:<section>.<field>``)."""
+    """One flag per leaf setting: ``--<section>.<field-name>``, and ``--<section>.<sub>.<field-name>`` in a
+    nested section such as ``field.grid`` (dest ``cfg:<dotted path>``); one argument group per section."""
     defaults = Config()
     for section in SECTIONS:
-        sub = getattr(defaults, section)
-        docs = field_docs(type(sub))
-        hints = _hints(type(sub))
-        group = parser.add_argument_group(f"{section} settings", (type(sub).__doc__ or "").strip().split("\n")[0])
-        for f in dataclasses.fields(sub):
-            tp = hints[f.name]
-            flag = f"--{section}.{f.name.replace('_', '-')}"
-            kwargs: dict[str, Any] = dict(dest=f"cfg:{section}.{f.name}", default=argparse.SUPPRESS,
-                                          help=f"{docs.get(f.name, '')} (default: {getattr(sub, f.name)!r})".replace("%", "%%"))
-            if typing.get_origin(tp) in (tuple, list):
-                kwargs.update(nargs="*", metavar="V")
-            elif tp is bool:
-                kwargs.update(metavar="{true,false}")
-            else:
-                kwargs.update(metavar=tp.__name__.upper() if isinstance(tp, type) else "V")
-            group.add_argument(flag, **kwargs)
+        _add_section_flags(parser, section, getattr(defaults, section))
+
+
+def _add_section_flags(parser: argparse.ArgumentParser, path: str, obj: Any) -> None:
+    docs = field_docs(type(obj))
+    hints = _hints(type(obj))
+    group = parser.add_argument_group(f"{path} settings", (type(obj).__doc__ or "").strip().split("\n")[0])
+    nested = []
+    for f in dataclasses.fields(obj):
+        value = getattr(obj, f.name)
+        if dataclasses.is_dataclass(value):
+            nested.append((f"{path}.{f.name}", value))
+            continue
+        tp = hints[f.name]
+        flag = f"--{path}.{f.name.replace('_', '-')}"
+        kwargs: dict[str, Any] = dict(dest=f"cfg:{path}.{f.name}", default=argparse.SUPPRESS,
+                                      help=f"{docs.get(f.name, '')} (default: {value!r})".replace("%", "%%"))
+        if typing.get_origin(tp) in (tuple, list):
+            kwargs.update(nargs="*", metavar="V")
+        elif tp is bool:
+            kwargs.update(metavar="{true,false}")
+        else:
+            kwargs.update(metavar=tp.__name__.upper() if isinstance(tp, type) else "V")
+        group.add_argument(flag, **kwargs)
+    for sub_path, sub in nested:
+        _add_section_flags(parser, sub_path, sub)
 
 
 def overrides_from_args(args: argparse.Namespace) -> dict:
-    """Collect the ``--section.field`` flags the user gave into a nested dict."""
+    """Collect the ``--section[.sub].field`` flags the user gave into a nested dict.
+
+    Examples
+    --------
+    >>> overrides_from_args(argparse.Namespace(**{"cfg:optim.steps": 5, "cfg:field.grid.levels": 2, "quiet": True}))
+    {'optim': {'steps': 5}, 'field': {'grid': {'levels': 2}}}
+    """
     out: dict[str, dict] = {}
     for key, val in vars(args).items():
         if key.startswith("cfg:"):
-            section, name = key[4:].split(".", 1)
-            out.setdefault(section, {})[name] = val
+            *sections, name = key[4:].split(".")
+            node = out
+            for section in sections:
+                node = node.setdefault(section, {})
+            node[name] = val
     return out

@@ -1,0 +1,170 @@
+"""Field kind ``grid``: the paper's model S.
+
+Multi-resolution voxel feature grids over the (contracted) scene feed a density decoder and a
+view-dependent colour decoder (spherical harmonics of the direction); a separate small *understanding
+grid* feeds a semantic and an instance decoder. Labels never shape geometry: the geometry features the
+label decoders may read are detached. Settings: ``field.grid.*`` (:class:`GridFieldConfig`) besides the
+shared ``field.*`` ones (:class:`lift3d.field.registry.FieldConfig`).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import TYPE_CHECKING, Callable
+
+import torch
+from torch import Tensor
+
+from lift3d.field.base import Field
+from lift3d.field.encodings import positional_encoding, positional_encoding_dim, spherical_harmonics
+from lift3d.field.grids import DenseGrid, default_resolutions
+from lift3d.field.layers import density_activation, make_mlp
+
+if TYPE_CHECKING:  # the registry imports this module
+    from lift3d.field.registry import FieldConfig
+
+
+@dataclass
+class GridFieldConfig:
+    """Voxel grids and decoders of the ``grid`` field (the paper's model S)."""
+
+    levels: int = 3
+    """Resolution levels of the geometry/appearance grid."""
+    min_resolution: int = 32
+    """Nodes per axis of the coarsest level."""
+    max_resolution: int = 0
+    """Nodes per axis of the finest level; 0 = from scene extent and image size (capped by the preset)."""
+    resolution_cap: int = 128
+    """Upper bound for the derived finest resolution (CPU grids beyond ~10 M parameters get slow)."""
+    channels: int = 4
+    """Features per node and level."""
+    coarse_to_fine: float = 0.0
+    """Fraction of the training steps over which the finer grid levels are switched on one by one (0 = all
+    from the start). Coarse voxels are seen by many views, so geometry forms consistently before fine
+    levels can fit per-view fog near the cameras."""
+    position_frequencies: int = 2
+    """Low-frequency positional encoding of the contracted position added to the grid features."""
+    density_hidden_dim: int = 64
+    """Width of the density (geometry) decoder."""
+    color_hidden_dim: int = 64
+    """Width of the colour (appearance) decoder."""
+    color_layers: int = 2
+    """Hidden layers of the colour decoder."""
+    understanding_resolutions: tuple[int, ...] = (16,)
+    """Resolutions of the understanding grid (paper: a single 16³ level)."""
+    understanding_channels: int = 1
+    """Features per node of the understanding grid (paper: 1)."""
+    head_hidden_dim: int = 256
+    """Width of the semantic and instance decoders (paper: 256)."""
+    head_layers: int = 2
+    """Hidden layers of the semantic and instance decoders."""
+    head_position_frequencies: int = 4
+    """Positional-encoding frequencies of the contracted position fed to the label decoders."""
+    head_uses_geometry: bool = True
+    """Feed the (detached) geometry features to the label decoders: sharp label boundaries at object edges
+    without letting labels carve geometry."""
+
+    def derive_sizes(self, resolution_for: Callable[[int, int], tuple[int, str]]) -> dict[str, str]:
+        """Fill ``max_resolution`` from the scene when it is 0.
+
+        ``resolution_for(cap, minimum)`` is the resolution the scene's pixel footprint asks for and why
+        (:func:`lift3d.model.normalization.derive_grid_resolution`). Returns the reason for config.yml.
+        """
+        if self.max_resolution > 0:
+            return {}
+        self.max_resolution, why = resolution_for(self.resolution_cap, self.min_resolution)
+        return {"why_grid_resolution": why}
+
+
+class GridField(Field):
+    """The paper's model S (field kind ``grid``).
+
+    Parameters
+    ----------
+    cfg : FieldConfig
+        With ``num_semantic_classes``, ``grid.max_resolution`` and ``contraction`` already resolved.
+
+    Examples
+    --------
+    >>> import torch
+    >>> from lift3d.field.registry import FieldConfig
+    >>> cfg = FieldConfig(num_semantic_classes=4, num_instance_channels=3, contraction="none",
+    ...                   grid=GridFieldConfig(max_resolution=32, min_resolution=8, head_hidden_dim=16))
+    >>> field = GridField(cfg)
+    >>> sigma, geo, u = field.geometry(torch.zeros(5, 3))
+    >>> sem, inst = field.labels(u, geo)
+    >>> sigma.shape, field.color(geo, torch.nn.functional.normalize(torch.ones(5, 3))).shape, sem.shape, inst.shape
+    (torch.Size([5]), torch.Size([5, 3]), torch.Size([5, 4]), torch.Size([5, 3]))
+    """
+
+    def __init__(self, cfg: FieldConfig):
+        super().__init__(cfg.contraction)
+        if cfg.num_semantic_classes < 2:
+            raise ValueError("num_semantic_classes must be resolved (>= 2, void included) before building the field")
+        g = cfg.grid
+        self.cfg = cfg
+        res = default_resolutions(g.max_resolution, g.levels, min(g.min_resolution, g.max_resolution))
+        self.grid = DenseGrid(res, g.channels)
+        geo_in = self.grid.out_dim + positional_encoding_dim(3, g.position_frequencies, include_input=True)
+        self.density_mlp = make_mlp(geo_in, g.density_hidden_dim, 1 + cfg.geo_feat_dim, 1)
+        self.color_mlp = make_mlp(cfg.geo_feat_dim + (cfg.sh_degree + 1) ** 2, g.color_hidden_dim, 3, g.color_layers)
+        self.understanding_grid = DenseGrid(tuple(g.understanding_resolutions), g.understanding_channels, init_std=0.1)
+        head_in = (
+            self.understanding_grid.out_dim
+            + positional_encoding_dim(3, g.head_position_frequencies, include_input=True)
+            + (cfg.geo_feat_dim if g.head_uses_geometry else 0)
+        )
+        self.semantic_mlp = make_mlp(head_in, g.head_hidden_dim, cfg.num_semantic_classes, g.head_layers)
+        self.instance_mlp = (
+            make_mlp(head_in, g.head_hidden_dim, cfg.num_instance_channels, g.head_layers)
+            if cfg.num_instance_channels > 0
+            else None
+        )
+
+    @property
+    def has_instances(self) -> bool:
+        return self.instance_mlp is not None
+
+    @property
+    def tv_grids(self) -> list[DenseGrid]:
+        return [self.grid, self.understanding_grid]
+
+    @property
+    def finest_resolution(self) -> int:
+        return int(self.grid.resolutions[-1])
+
+    def set_training_progress(self, progress: float) -> None:
+        """Coarse-to-fine: level ``l`` switches on at ``l/(L-1)`` of the first ``grid.coarse_to_fine`` of
+        training."""
+        levels = len(self.grid.resolutions)
+        frac = self.cfg.grid.coarse_to_fine
+        if frac <= 0 or levels == 1:
+            self.grid.active_levels = levels
+            return
+        self.grid.active_levels = int(min(levels, 1 + math.floor(progress / frac * (levels - 1))))
+
+    def geometry(self, x: Tensor) -> tuple[Tensor, Tensor, Tensor]:
+        u, valid = self.space(x)
+        feats = self.grid(u)
+        h = torch.cat([feats, positional_encoding(u * 2 - 1, self.cfg.grid.position_frequencies)], dim=-1)
+        out = self.density_mlp(h)
+        # The first channel of every grid level adds to the raw density directly (as a DVGO/Plenoxels
+        # density grid would): surfaces form within a few hundred steps instead of waiting for the
+        # decoder's output layer to grow.
+        direct = feats[:, :: self.cfg.grid.channels].sum(-1)
+        sigma = density_activation(out[:, 0] + direct + self.cfg.density_bias) * valid
+        return sigma, out[:, 1:], u
+
+    def color(self, geo_feat: Tensor, dirs: Tensor) -> Tensor:
+        h = torch.cat([geo_feat, spherical_harmonics(dirs, self.cfg.sh_degree)], dim=-1)
+        return torch.sigmoid(self.color_mlp(h))
+
+    def labels(self, u: Tensor, geo_feat: Tensor) -> tuple[Tensor, Tensor | None]:
+        g = self.cfg.grid
+        parts = [self.understanding_grid(u), positional_encoding(u * 2 - 1, g.head_position_frequencies)]
+        if g.head_uses_geometry:
+            parts.append(geo_feat.detach())
+        h = torch.cat(parts, dim=-1)
+        inst = self.instance_mlp(h) if self.instance_mlp is not None else None
+        return self.semantic_mlp(h), inst

@@ -1,0 +1,54 @@
+"""Where a field lives: normalised scene points → grid coordinates ``[0, 1]^3`` (with the scene contraction)."""
+
+from __future__ import annotations
+
+import torch
+from torch import Tensor, nn
+
+from lift3d.field.encodings import contract, uncontract
+
+
+class SceneSpace(nn.Module):
+    """Maps normalised scene points to grid coordinates ``[0, 1]^3`` (contracting unbounded space).
+
+    Bounded scenes use the box ``[-1, 1]^3``; points outside it are flagged invalid (zero density).
+    Unbounded scenes contract all of space into ``[-2, 2]^3``; every finite point is valid.
+    """
+
+    def __init__(self, contraction: str):
+        super().__init__()
+        self.contraction = contraction
+        self.extent = 1.0 if contraction == "none" else 2.0
+        # [R, R, R] bool over grid coordinates (index order x, y, z); empty = every cell observed.
+        self.register_buffer("observed", torch.ones(0, 0, 0, dtype=torch.bool))
+
+    def forward(self, x: Tensor) -> tuple[Tensor, Tensor]:
+        """``x``: ``[N, 3]`` → ``u`` ``[N, 3]`` in ``[0, 1]``, ``valid`` ``[N]`` bool."""
+        c = contract(x, self.contraction)
+        u = (c / self.extent + 1.0) * 0.5
+        if self.contraction == "none":
+            valid = (u >= 0).all(-1) & (u <= 1).all(-1)
+        else:
+            valid = torch.isfinite(u).all(-1)
+        u = torch.nan_to_num(u, nan=0.5).clamp(0.0, 1.0)
+        if self.observed.numel():
+            r = self.observed.shape[0]
+            idx = (u * r).long().clamp_(0, r - 1)
+            valid = valid & self.observed[idx[:, 0], idx[:, 1], idx[:, 2]]
+        return u, valid
+
+    def cell_centers(self, resolution: int) -> Tensor:
+        """``[R, R, R, 3]`` normalised scene points at the centres of an R³ lattice of grid space
+        (uncontracted; ``inf`` for cells the contraction never reaches, the cube's corners with ``l2``)."""
+        g = (torch.arange(resolution, dtype=torch.float64) + 0.5) / resolution * 2.0 - 1.0
+        c = torch.stack(torch.meshgrid(g, g, g, indexing="ij"), -1) * self.extent
+        return torch.from_numpy(uncontract(c.numpy(), self.contraction))
+
+    def _load_from_state_dict(self, state_dict, prefix, *args, **kwargs):
+        # The lattice's size is data, not architecture: take the checkpoint's (older checkpoints have none).
+        key = prefix + "observed"
+        if key in state_dict:
+            self.observed = state_dict[key].to(torch.bool).clone()
+        else:
+            state_dict[key] = self.observed
+        super()._load_from_state_dict(state_dict, prefix, *args, **kwargs)
