@@ -12,6 +12,9 @@ A scene folder holds posed images plus per-frame 2D panoptic pseudo-labels (and 
       gt/points.ply                 optional 3D GT: x, y, z, semantic, instance
       depth/<name>.png              optional uint16 depth (``depth_unit_scale_factor`` metres per unit)
       gt/depth/<name>.png           optional exact depth for evaluation (``gt_depth_file_path``)
+      sparse/points3D.ply           optional sparse points from the images (``sparse_points`` in transforms.json)
+      sparse/observations.npz         and where each frame sees them (see lift3d.data.stereo)
+      mvs/depth|sigma/<name>.png    optional multi-view-stereo depth and its sigma (``mvs_depth_file_path``)
 
 Pseudo-labels may instead come as two PNGs per frame (``semantic_file_path``: category ids,
 ``instance_file_path``: per-frame instance ids, 0 = none) and optional per-pixel confidence maps
@@ -47,6 +50,7 @@ from lift3d.data.images import (
     write_rgb,
 )
 from lift3d.data.ply import read_labelled_ply, write_labelled_ply
+from lift3d.data.stereo import SparsePoints, read_sparse_points
 from lift3d.errors import InputError
 from lift3d.utils.atomic import write_json_atomic
 from lift3d.utils.progress import progress_bar
@@ -140,6 +144,8 @@ class Frame:
     gt_depth_path: Path | None = None
     #: the true camera-to-world matrix when the written one is noisy (``gt_transform_matrix``), else None
     gt_c2w: np.ndarray | None = None
+    mvs_depth_path: Path | None = None
+    mvs_sigma_path: Path | None = None
 
 
 @dataclass
@@ -154,6 +160,7 @@ class Scene:
     scene_box: SceneBox | None = None
     depth_unit_scale_factor: float = 1e-3
     gt_points_path: Path | None = None
+    sparse_points_paths: tuple[Path, Path] | None = None
 
     # ---------------------------------------------------------------- metadata
     @property
@@ -290,6 +297,30 @@ class Scene:
         self._check_size(i, f.mask_path, m, "mask")
         return m
 
+    def sparse_points(self) -> SparsePoints | None:
+        """The scene's sparse points (``sparse_points`` in ``transforms.json``), validated; ``obs_frame``
+        indexes ``self.frames``. None when the scene has none."""
+        if self.sparse_points_paths is None:
+            return None
+        return read_sparse_points(*self.sparse_points_paths, frame_names=[f.name for f in self.frames])
+
+    def mvs_depth(self, i: int) -> tuple[np.ndarray, np.ndarray] | None:
+        """Multi-view-stereo ``(depth, sigma)`` of frame ``i`` (``float32 [H, W]`` world units, 0 = none),
+        or None when the frame has none."""
+        f = self.frames[i]
+        if f.mvs_depth_path is None:
+            return None
+        d = read_depth(f.mvs_depth_path, self.depth_unit_scale_factor)
+        self._check_size(i, f.mvs_depth_path, d, "MVS depth map")
+        if f.mvs_sigma_path is None:
+            raise InputError(self.root / "transforms.json", f"frame {f.file_path!r} has mvs_depth_file_path "
+                                                            "but no mvs_sigma_file_path")
+        s = read_depth(f.mvs_sigma_path, self.depth_unit_scale_factor)
+        self._check_size(i, f.mvs_sigma_path, s, "MVS sigma map")
+        if np.any((d > 0) & (s <= 0)):
+            raise InputError(f.mvs_sigma_path, "sigma must be positive wherever the MVS depth is")
+        return d, s
+
     def gt_points(self) -> dict[str, np.ndarray] | None:
         """``gt/points.ply`` as arrays (``xyz``, ``semantic``, ``instance``), or None."""
         if self.gt_points_path is None:
@@ -310,7 +341,9 @@ class Scene:
             self.depth(i)
             self.gt_depth(i)
             self.mask(i)
+            self.mvs_depth(i)
         self.gt_points()
+        self.sparse_points()
 
 
 # --------------------------------------------------------------------------------------------- reading
@@ -592,6 +625,9 @@ def load_scene(root: str | Path) -> Scene:
             if gt_c2w.shape != (4, 4) or not np.all(np.isfinite(gt_c2w)) or not is_rigid(gt_c2w, atol=1e-3):
                 raise InputError(tpath, f"frames[{k}].gt_transform_matrix: must be a finite rigid 4x4 matrix")
             frame.gt_c2w = gt_c2w
+        for key in ("mvs_depth_file_path", "mvs_sigma_file_path"):
+            if key in fr:
+                setattr(frame, key.replace("_file", ""), _resolve(root, fr[key], tpath, f"frames[{k}].{key}"))
         frames.append(frame)
 
     if not any(f.panoptic_path or f.semantic_path for f in frames):
@@ -624,9 +660,17 @@ def load_scene(root: str | Path) -> Scene:
     if depth_scale <= 0:  # would silently turn every depth into 0 or negative distances
         raise InputError(tpath, f"depth_unit_scale_factor: must be positive (got {depth_scale})")
     gt_points = root / "gt" / "points.ply"
+    sparse = None
+    if "sparse_points" in meta:
+        sp = meta["sparse_points"]
+        if not isinstance(sp, dict) or not all(isinstance(sp.get(key), str) for key in ("points", "observations")):
+            raise InputError(tpath, "sparse_points: needs 'points' and 'observations' file paths")
+        sparse = (_resolve(root, sp["points"], tpath, "sparse_points.points"),
+                  _resolve(root, sp["observations"], tpath, "sparse_points.observations"))
     return Scene(
         root=root, frames=frames, cameras=cameras, categories=categories, splits=splits, scene_box=scene_box,
         depth_unit_scale_factor=depth_scale, gt_points_path=gt_points if gt_points.is_file() else None,
+        sparse_points_paths=sparse,
     )
 
 

@@ -1,0 +1,448 @@
+"""Plane-sweep multi-view stereo with known cameras: semi-dense depth and a per-pixel sigma.
+
+For each reference view and its best source views (the pair selection of :mod:`lift3d.sfm.pairs`):
+
+1. **Sweep**: planes fronto-parallel to the reference camera, uniform in inverse depth between a near and
+   a far depth (from the view's sparse points when given, else from the scene box); as many as make the
+   point move about ``plane_step`` pixels between planes in the source that moves most (``max_planes`` at
+   most).
+   Each source image is warped onto the reference through the plane's homography
+   ``H = K_s (R + t nᵀ / d) K_r⁻¹`` (``cv2.warpPerspective``).
+2. **Photo-consistency**: zero-mean normalised cross-correlation over ``window`` x ``window`` patches, from
+   box filters (``cv2.boxFilter``) of the images, their squares and products. Per plane the cost is the mean
+   of the ``best_k`` best sources (robust to occlusion: a source that does not see the point is ignored).
+3. **Winner-take-all** over the planes, refined between planes by a parabola through the neighbouring
+   costs (in inverse depth). Kept when the winner's ZNCC reaches ``min_zncc``, beats every plane more than
+   two planes away by ``min_margin`` (uniqueness) and the reference window has texture (``min_texture``).
+4. **Geometric consistency**: a depth is kept when, for at least ``consistent_views`` source views, the
+   point reprojected into the source, lifted with the source's own depth and projected back lands within
+   ``consistency_pixels`` of where it started with a depth within ``consistency_depth`` (relative). The
+   kept depth is the mean of the consistent estimates.
+
+**Sigma.** With ``g_s = |dp_s / dd|`` the image motion (pixels per world unit of reference depth) of the
+point in source ``s`` at the chosen depth, and ``σ_m`` = ``match_sigma`` the matching precision in pixels,
+``σ_d = σ_m / sqrt(Σ_s g_s²)`` over the sources that agreed (ZNCC ≥ ``min_zncc``) — the same propagation as
+the sparse points' (:mod:`lift3d.sfm.triangulation`), widened to the spread of the consistent estimates when
+that is larger.
+
+Images larger than ``max_size`` are matched downscaled; depth maps are brought back to the image size
+(nearest neighbour). Distorted cameras are matched on undistorted images and the maps resampled back.
+"""
+
+from __future__ import annotations
+
+import time
+from typing import Sequence
+
+import cv2
+import numpy as np
+
+from lift3d.data.cameras import Cameras
+from lift3d.data.scene import Scene
+from lift3d.data.stereo import DenseDepth, SparsePoints
+from lift3d.sfm.config import DenseConfig, SfmConfig
+from lift3d.sfm.geometry import ideal_pixels, intrinsics, world_to_camera
+from lift3d.sfm.pairs import select_pairs
+from lift3d.sfm.sparse import default_frames
+from lift3d.utils.progress import progress_bar
+
+# Continuous pixel coordinates (centre of pixel c at c + 0.5) to OpenCV's (centre at c) and back.
+_TO_CV = np.array([[1.0, 0, -0.5], [0, 1.0, -0.5], [0, 0, 1.0]])
+_FROM_CV = np.array([[1.0, 0, 0.5], [0, 1.0, 0.5], [0, 0, 1.0]])
+
+
+def plane_homography(k_ref: np.ndarray, k_src: np.ndarray, r_rel: np.ndarray, t_rel: np.ndarray,
+                     normal: np.ndarray, q: float) -> np.ndarray:
+    """Homography mapping reference pixels (OpenCV pixel coordinates) to source pixels for the plane
+    ``normalᵀ X_ref = 1 / q`` in reference camera coordinates (``X_src = r_rel X_ref + t_rel``):
+    ``H = K_s (R + q t nᵀ) K_r⁻¹``, linear in ``q``, so planes uniform in ``q`` move the image about evenly.
+
+    Examples
+    --------
+    >>> import numpy as np
+    >>> k = np.array([[100.0, 0, 50], [0, 100.0, 50], [0, 0, 1]])
+    >>> h = plane_homography(k, k, np.eye(3), np.array([-0.5, 0, 0]), np.array([0, 0, 1.0]), 0.5)  # z = 2
+    >>> p = h @ [49.5, 49.5, 1.0]; (p[:2] / p[2]).round(3).tolist()        # disparity f b / z = 25 px
+    [24.5, 49.5]
+    """
+    h = k_src @ (r_rel + q * np.outer(t_rel, normal)) @ np.linalg.inv(k_ref)
+    return _TO_CV @ h @ _FROM_CV
+
+
+def _box(img: np.ndarray, window: int) -> np.ndarray:
+    return cv2.boxFilter(img, cv2.CV_32F, (window, window), normalize=True, borderType=cv2.BORDER_REFLECT)
+
+
+def _undistort(image: np.ndarray, cams: Cameras, i: int) -> np.ndarray:
+    k = cams.K(i)
+    if cams.camera_model == "OPENCV_FISHEYE":
+        return cv2.fisheye.undistortImage(image, k, cams.distortion[i, :4], Knew=k)
+    return cv2.undistort(image, k, cams.distortion[i])
+
+
+def _grey(image: np.ndarray, size: tuple[int, int]) -> np.ndarray:
+    g = cv2.cvtColor(image, cv2.COLOR_RGB2GRAY) if image.ndim == 3 else image
+    if (g.shape[1], g.shape[0]) != size:
+        g = cv2.resize(g, size, interpolation=cv2.INTER_AREA)
+    return g.astype(np.float32)
+
+
+def _pixel_rays(k: np.ndarray, h: int, w: int) -> np.ndarray:
+    """``[H, W, 3]`` rays ``(x, y, 1)`` through the pixel centres (z-depth 1)."""
+    rows, cols = np.indices((h, w))
+    return np.stack([((cols + 0.5) - k[0, 2]) / k[0, 0], ((rows + 0.5) - k[1, 2]) / k[1, 1], np.ones((h, w))], -1)
+
+
+def plane_range(k_ref: np.ndarray, k_src: Sequence[np.ndarray], rel: Sequence[tuple[np.ndarray, np.ndarray]],
+                normal: np.ndarray, near: float, far: float, shape: tuple[int, int],
+                config: DenseConfig) -> np.ndarray:
+    """The plane parameters ``q`` to sweep along ``normal``: every plane that meets the reference frustum
+    between ``near`` and ``far`` (rays within ~6 degrees of the planes are left out), spaced so that the
+    point moves about ``plane_step`` pixels between planes in the source that moves most."""
+    h, w = shape
+    g = (np.arange(7) + 0.5) / 7
+    pts = np.stack(np.meshgrid(g * w, g * h), -1).reshape(-1, 2)
+    ray = np.column_stack([(pts[:, 0] - k_ref[0, 2]) / k_ref[0, 0], (pts[:, 1] - k_ref[1, 2]) / k_ref[1, 1],
+                           np.ones(len(pts))])
+    c = ray @ normal
+    keep = np.abs(c) >= 0.1 * np.linalg.norm(ray, axis=1)
+    if not keep.any():
+        return np.zeros(0)
+    qs = np.concatenate([1.0 / (near * c[keep]), 1.0 / (far * c[keep])])
+    q_lo, q_hi = float(qs.min()), float(qs.max())
+    motion = 0.0
+    hp = np.column_stack([pts - 0.5, np.ones(len(pts))])[keep]  # OpenCV pixel coordinates
+    for ks, (r_rel, t_rel) in zip(k_src, rel):
+        ends = []
+        for q in (q_lo, q_hi):
+            p = hp @ plane_homography(k_ref, ks, r_rel, t_rel, normal, q).T
+            ends.append(p[:, :2] / np.where(np.abs(p[:, 2:]) > 1e-9, p[:, 2:], 1e-9))
+        motion = max(motion, float(np.max(np.linalg.norm(ends[0] - ends[1], axis=1))))
+    n = int(np.clip(np.ceil(motion / config.plane_step) + 1, 8, config.max_planes))
+    return np.linspace(q_lo, q_hi, n)
+
+
+def _sweep_direction(ref, var_r, mu_r, sources, k_ref, k_src, rel, normal, qs, near, far, config):
+    """Cost volume along one plane direction; returns per pixel the winner's cost, its depth, the
+    uniqueness margin, whether it is an interior plane, and each source's ZNCC at the winner."""
+    h, w = ref.shape
+    win = config.window
+    n_src = len(sources)
+    k_best = min(config.best_k, n_src)
+    c_pix = (_pixel_rays(k_ref, h, w) @ normal).astype(np.float32)  # nᵀ ray per pixel: z = 1 / (q c)
+    min_var = config.min_texture**2 * 0.25  # sources need some texture too (ZNCC of a flat patch is noise)
+    cost = np.empty((len(qs), h, w), np.float32)
+    best_zncc = np.full((h, w), -np.inf, np.float32)
+    best_src = np.zeros((n_src, h, w), np.float32)
+    srcs = [np.dstack([src, np.ones_like(src)]) for src in sources]  # 2nd channel: coverage after warping
+    # H(q) = A + q B (plane_homography is linear in q): two matrices per source instead of one per plane.
+    hom_a = [plane_homography(k_ref, ks, r_rel, t_rel, normal, 0.0) for ks, (r_rel, t_rel) in zip(k_src, rel)]
+    hom_b = [plane_homography(k_ref, ks, r_rel, t_rel, normal, 1.0) - a
+             for a, ks, (r_rel, t_rel) in zip(hom_a, k_src, rel)]
+    lo, hi = np.float32(0.8 * near), np.float32(1.25 * far)
+    for p, q in enumerate(qs):
+        with np.errstate(divide="ignore", invalid="ignore"):
+            z_plane = np.float32(1.0) / (np.float32(q) * c_pix)
+        in_range = (z_plane > lo) & (z_plane < hi)
+        zs = np.empty((n_src, h, w), np.float32)
+        top = np.full((k_best, h, w), -1.0, np.float32)  # the k best ZNCCs so far, sorted high to low
+        for s, src in enumerate(srcs):
+            hom = hom_a[s] + q * hom_b[s]
+            # Border 0, never NaN: OpenCV's box filter keeps running sums, so a NaN would spread along the
+            # whole row. Pixels whose source position falls outside are masked by the coverage channel.
+            warped = cv2.warpPerspective(src, hom, (w, h), flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP,
+                                         borderMode=cv2.BORDER_CONSTANT, borderValue=0)
+            img, cover = warped[..., 0], warped[..., 1]
+            stats = _box(np.dstack([img, img * img, img * ref]), win)
+            mu_s = stats[..., 0]
+            var_s = stats[..., 1] - mu_s * mu_s
+            cov = stats[..., 2] - mu_s * mu_r
+            z = cov / np.sqrt(np.maximum(var_s * var_r, 1e-12))
+            z = np.where((cover > 0.99) & (var_s >= min_var), np.clip(z, -1, 1), np.float32(-1.0))
+            zs[s] = z
+            for j in range(k_best):  # insertion into the sorted top-k (cheaper than a partition per plane)
+                hi_j = np.maximum(top[j], z)
+                z = np.minimum(top[j], z)
+                top[j] = hi_j
+        agg = np.where(in_range, top.mean(0), np.float32(-1.0))
+        cost[p] = 1.0 - agg
+        better = agg > best_zncc
+        best_zncc = np.where(better, agg, best_zncc)
+        best_src = np.where(better[None], zs, best_src)
+    n = len(qs)
+    idx = cost.argmin(0)
+    rows, cols = np.indices((h, w))
+    c0 = cost[idx, rows, cols]
+    cm = cost[np.maximum(idx - 1, 0), rows, cols]
+    cp = cost[np.minimum(idx + 1, n - 1), rows, cols]
+    denom = cm - 2 * c0 + cp
+    with np.errstate(invalid="ignore", divide="ignore"):
+        offset = np.where(denom > 1e-9, 0.5 * (cm - cp) / denom, 0.0)
+    interior = (idx > 0) & (idx < n - 1)
+    offset = np.clip(np.where(interior, offset, 0.0), -0.5, 0.5)
+    q_best = qs[idx] + offset * (qs[1] - qs[0])
+    with np.errstate(divide="ignore", invalid="ignore"):
+        depth = 1.0 / (q_best * c_pix)
+    planes = np.arange(n)[:, None, None]
+    far_cost = np.where(np.abs(planes - idx[None]) > 2, cost, np.inf).min(0)
+    margin = far_cost - c0
+    return c0, np.nan_to_num(depth, nan=0.0, posinf=0.0, neginf=0.0), margin, interior, best_src
+
+
+def sweep_view(ref: np.ndarray, sources: Sequence[np.ndarray], k_ref: np.ndarray, k_src: Sequence[np.ndarray],
+               rel: Sequence[tuple[np.ndarray, np.ndarray]], near: float, far: float, config: DenseConfig,
+               normals: Sequence[np.ndarray] = (np.array([0.0, 0.0, 1.0]),)) -> tuple[np.ndarray, np.ndarray]:
+    """Plane sweep of one reference view, along one or more plane directions.
+
+    Parameters
+    ----------
+    ref : np.ndarray
+        ``float32 [H, W]`` grey reference image.
+    sources : sequence of np.ndarray
+        Grey source images (any sizes).
+    k_ref, k_src : np.ndarray
+        Intrinsics (continuous pixel coordinates) of the reference and of each source at these sizes.
+    rel : sequence of (R, t)
+        Pose of each source relative to the reference: ``X_src = R X_ref + t``.
+    near, far : float
+        Depth range of the sweep (z-depth along the reference's optical axis).
+    config : DenseConfig
+    normals : sequence of np.ndarray
+        Plane normals in reference camera coordinates; ``(0, 0, 1)`` is fronto-parallel. Each pixel takes
+        the direction whose best plane is most photo-consistent.
+
+    Returns
+    -------
+    depth : np.ndarray
+        ``float32 [H, W]`` z-depth, 0 where rejected.
+    sigma : np.ndarray
+        ``float32 [H, W]`` standard deviation of the depth, 0 where rejected.
+    """
+    h, w = ref.shape
+    win = config.window
+    mu_r = _box(ref, win)
+    var_r = np.maximum(_box(ref * ref, win) - mu_r * mu_r, 0.0)
+    best = None
+    for normal in normals:
+        normal = np.asarray(normal, np.float64)
+        qs = plane_range(k_ref, k_src, rel, normal, near, far, (h, w), config)
+        if len(qs) < 3:
+            continue
+        res = list(_sweep_direction(ref, var_r, mu_r, sources, k_ref, k_src, rel, normal, qs, near, far, config))
+        if best is None:
+            best = res
+            continue
+        take = res[0] < best[0]
+        for k in range(4):
+            best[k] = np.where(take, res[k], best[k])
+        best[4] = np.where(take[None], res[4], best[4])
+    if best is None:
+        return np.zeros((h, w), np.float32), np.zeros((h, w), np.float32)
+    c0, depth, margin, interior, best_src = best
+    zncc = 1.0 - c0
+    ok = ((var_r >= config.min_texture**2) & interior & (zncc >= config.min_zncc) & (margin >= config.min_margin)
+          & (depth > 0))
+
+    # Sigma from the image motion per unit depth in the sources that agree.
+    ray = _pixel_rays(k_ref, h, w)  # dX_ref / dd for z-depth d
+    info = np.zeros((h, w))
+    for s, (ks, (r_rel, t_rel)) in enumerate(zip(k_src, rel)):
+        xs = (ray * depth[..., None]) @ r_rel.T + t_rel
+        dxs = ray @ r_rel.T
+        zc = np.maximum(xs[..., 2], 1e-9)
+        du = ks[0, 0] * (dxs[..., 0] * zc - xs[..., 0] * dxs[..., 2]) / zc**2
+        dv = ks[1, 1] * (dxs[..., 1] * zc - xs[..., 1] * dxs[..., 2]) / zc**2
+        agree = best_src[s] >= config.min_zncc
+        info += np.where(agree, du * du + dv * dv, 0.0)
+    sigma = config.match_sigma / np.sqrt(np.maximum(info, 1e-12))
+    ok &= info > 0
+    return (np.where(ok, depth, 0.0).astype(np.float32), np.where(ok, sigma, 0.0).astype(np.float32))
+
+
+def geometric_filter(depths: list[np.ndarray], sigmas: list[np.ndarray], ks: list[np.ndarray],
+                     r: np.ndarray, t: np.ndarray, neighbours: list[np.ndarray],
+                     config: DenseConfig) -> tuple[list[np.ndarray], list[np.ndarray]]:
+    """Keep depths that at least ``consistent_views`` source depth maps agree with; average them."""
+    out_d, out_s = [], []
+    for v, (d, s) in enumerate(zip(depths, sigmas)):
+        h, w = d.shape
+        valid = d > 0
+        rows, cols = np.nonzero(valid)
+        if config.consistent_views == 0 or len(rows) == 0:
+            out_d.append(d)
+            out_s.append(s)
+            continue
+        z = d[rows, cols].astype(np.float64)
+        k = ks[v]
+        x_cam = np.column_stack([((cols + 0.5) - k[0, 2]) / k[0, 0] * z, ((rows + 0.5) - k[1, 2]) / k[1, 1] * z, z])
+        x_w = (x_cam - t[v]) @ r[v]  # Rᵀ (X - t)
+        count = np.zeros(len(z), np.int64)
+        z_sum = z.copy()
+        z_sq = z * z
+        for n in neighbours[v]:
+            dn = depths[n]
+            kn = ks[n]
+            xn = x_w @ r[n].T + t[n]
+            with np.errstate(divide="ignore", invalid="ignore"):
+                un = kn[0, 0] * xn[:, 0] / xn[:, 2] + kn[0, 2]
+                vn = kn[1, 1] * xn[:, 1] / xn[:, 2] + kn[1, 2]
+            hn, wn = dn.shape
+            inside = (xn[:, 2] > 0) & (un >= 0) & (un < wn) & (vn >= 0) & (vn < hn)
+            ci = np.clip(np.nan_to_num(un, nan=0.0).astype(np.int64), 0, wn - 1)
+            ri = np.clip(np.nan_to_num(vn, nan=0.0).astype(np.int64), 0, hn - 1)
+            zn = np.where(inside, dn[ri, ci], 0.0).astype(np.float64)
+            # Lift with the source's own depth at that pixel and bring it back to the reference.
+            xn2 = np.column_stack([((ci + 0.5) - kn[0, 2]) / kn[0, 0] * zn, ((ri + 0.5) - kn[1, 2]) / kn[1, 1] * zn, zn])
+            xw2 = (xn2 - t[n]) @ r[n]
+            xr2 = xw2 @ r[v].T + t[v]
+            with np.errstate(divide="ignore", invalid="ignore"):
+                ur = k[0, 0] * xr2[:, 0] / xr2[:, 2] + k[0, 2]
+                vr = k[1, 1] * xr2[:, 1] / xr2[:, 2] + k[1, 2]
+                dist = np.hypot(ur - (cols + 0.5), vr - (rows + 0.5))
+                rel = np.abs(xr2[:, 2] - z) / z
+            agree = (zn > 0) & (dist <= config.consistency_pixels) & (rel <= config.consistency_depth)
+            count += agree
+            z_sum += np.where(agree, xr2[:, 2], 0.0)
+            z_sq += np.where(agree, xr2[:, 2] ** 2, 0.0)
+        keep = count >= config.consistent_views
+        mean = z_sum / (count + 1)
+        spread = np.sqrt(np.maximum(z_sq / (count + 1) - mean**2, 0.0))
+        nd = np.zeros_like(d)
+        ns = np.zeros_like(s)
+        nd[rows[keep], cols[keep]] = mean[keep]
+        ns[rows[keep], cols[keep]] = np.maximum(s[rows[keep], cols[keep]], spread[keep])
+        out_d.append(nd)
+        out_s.append(ns)
+    return out_d, out_s
+
+
+def _depth_range(v: int, frame_index: int, graph, sparse: SparsePoints | None) -> tuple[float, float]:
+    """Sweep range of view ``v``: its sparse points' depths (2nd-98th percentile, widened by 1.4x) when it
+    sees at least 20, else its frustum inside the scene box."""
+    near, far = graph.depth_range[v]
+    if sparse is not None and frame_index >= 0:
+        z = sparse.obs_depth[sparse.obs_frame == frame_index]
+        if len(z) >= 20:
+            lo, hi = np.percentile(z, [2, 98])
+            near, far = lo / 1.4, hi * 1.4
+    far = max(far, near * 1.5)
+    near = max(near, far * 0.01)
+    return float(near), float(far)
+
+
+def scene_up(cams: Cameras) -> np.ndarray | None:
+    """The world direction the cameras agree is up (mean of their image-up axes), or None when they do not
+    (a capture rolled every which way has no preferred horizontal planes)."""
+    up = cams.c2w[:, :3, 1].mean(0)  # OpenGL camera y axis = image up
+    n = np.linalg.norm(up)
+    return up / n if n > 0.7 else None
+
+
+def plane_sweep_scene(scene: Scene, frames: Sequence[int] | None = None, config: SfmConfig | None = None,
+                      sparse: SparsePoints | None = None, progress: bool = False) -> DenseDepth:
+    """Semi-dense depth and sigma maps of a scene's frames by plane-sweep stereo.
+
+    Parameters
+    ----------
+    scene : Scene
+        A loaded scene folder.
+    frames : sequence of int, optional
+        Frames to compute maps for, and the only frames used as sources (default: the ``train`` split).
+    config : SfmConfig, optional
+        ``config.dense`` holds the stereo knobs, ``config.pairs`` the view selection.
+    sparse : SparsePoints, optional
+        Sparse points of the scene (their depths narrow each view's sweep range).
+    progress : bool
+        Progress bars on stderr.
+
+    Returns
+    -------
+    DenseDepth
+        Maps at the scene's image sizes; ``info`` holds coverage, seconds and warnings.
+    """
+    cfg = (config or SfmConfig()).check()
+    dc = cfg.dense
+    frames = default_frames(scene) if frames is None else np.asarray(frames, np.int64)
+    cams = scene.cameras[frames]
+    t_start = time.perf_counter()
+    box = scene.scene_box
+    graph = select_pairs(cams, cfg.pairs, aabb=None if box is None else box.aabb)
+    warnings = []
+    if not graph.usable.any():
+        warnings.append("no view has a source view with enough overlap and baseline: no dense depth")
+    r, t = world_to_camera(cams)
+    k_full = intrinsics(cams)
+    greys, ks, sizes = [], [], []
+    for v, i in enumerate(frames):
+        img = scene.image(int(i))
+        if cams.has_distortion:
+            img = _undistort(img, cams, v)
+        h, w = img.shape[:2]
+        scale = min(1.0, dc.max_size / max(h, w))
+        size = (max(1, round(w * scale)), max(1, round(h * scale)))
+        greys.append(_grey(img, size))
+        kv = k_full[v].copy()
+        kv[0] *= size[0] / w
+        kv[1] *= size[1] / h
+        ks.append(kv)
+        sizes.append((w, h))
+    names = [scene.frames[int(i)].name for i in frames]
+    sparse_index = {}
+    if sparse is not None:
+        sparse_index = {n: k for k, n in enumerate(sparse.frame_names)}
+    up = scene_up(cams) if dc.sweep_up else None
+    depths, sigmas, used = [], [], []
+    t0 = time.perf_counter()
+    for v in progress_bar(range(len(frames)), desc="plane sweep", unit="view", disable=not progress):
+        nb = graph.ranked(v, dc.target_angle)[:dc.neighbors]
+        used.append(nb)
+        if len(nb) == 0:
+            depths.append(np.zeros_like(greys[v]))
+            sigmas.append(np.zeros_like(greys[v]))
+            continue
+        near, far = _depth_range(v, sparse_index.get(names[v], -1), graph, sparse)
+        rel = []
+        for n in nb:
+            r_rel = r[n] @ r[v].T
+            rel.append((r_rel, t[n] - r_rel @ t[v]))
+        normals = [np.array([0.0, 0.0, 1.0])]
+        if up is not None:
+            normals.append(r[v] @ up)
+        d, s = sweep_view(greys[v], [greys[n] for n in nb], ks[v], [ks[n] for n in nb], rel, near, far, dc,
+                          normals)
+        depths.append(d)
+        sigmas.append(s)
+    seconds = {"sweep": time.perf_counter() - t0}
+    t0 = time.perf_counter()
+    depths, sigmas = geometric_filter(depths, sigmas, ks, r, t, used, dc)
+    seconds["consistency"] = time.perf_counter() - t0
+    out_d, out_s = [], []
+    for v in range(len(frames)):
+        w, h = sizes[v]
+        d, s = depths[v], sigmas[v]
+        if cams.has_distortion:
+            d, s = _redistort(d, s, cams, v, ks[v])
+        elif d.shape != (h, w):
+            d = cv2.resize(d, (w, h), interpolation=cv2.INTER_NEAREST)
+            s = cv2.resize(s, (w, h), interpolation=cv2.INTER_NEAREST)
+        out_d.append(d.astype(np.float32))
+        out_s.append(s.astype(np.float32))
+    seconds["total"] = time.perf_counter() - t_start
+    dense = DenseDepth(names, out_d, out_s)
+    dense.info = {"source": "lift3d triangulate --dense", "seconds": {k: round(v, 3) for k, v in seconds.items()},
+                  "warnings": warnings}
+    return dense
+
+
+def _redistort(d: np.ndarray, s: np.ndarray, cams: Cameras, v: int, k_small: np.ndarray):
+    """Resample maps computed on the undistorted (and possibly downscaled) image onto the original pixels."""
+    w, h = int(cams.width[v]), int(cams.height[v])
+    rows, cols = np.indices((h, w))
+    uv = np.column_stack([cols.ravel() + 0.5, rows.ravel() + 0.5])
+    p = ideal_pixels(cams, v, uv)
+    sx, sy = d.shape[1] / w, d.shape[0] / h
+    mx = (p[:, 0] * sx - 0.5).reshape(h, w).astype(np.float32)
+    my = (p[:, 1] * sy - 0.5).reshape(h, w).astype(np.float32)
+    dd = cv2.remap(d, mx, my, cv2.INTER_NEAREST, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
+    ss = cv2.remap(s, mx, my, cv2.INTER_NEAREST, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
+    return dd, ss

@@ -1,0 +1,303 @@
+"""Geometry from the images (lift3d.sfm): triangulation, the epipolar check, filters, plane sweep, storage."""
+
+from __future__ import annotations
+
+import json
+
+import cv2
+import numpy as np
+import pytest
+
+from lift3d.cli.main import main as cli_main
+from lift3d.data.cameras import Cameras, look_at
+from lift3d.data.scene import Category, SceneWriter, Segment, load_scene
+from lift3d.data.stereo import DenseDepth, SparsePoints, write_mvs_depth, write_sparse_points
+from lift3d.errors import InputError
+from lift3d.sfm import SfmConfig, TrackConfig, plane_sweep_scene, triangulate_scene
+from lift3d.sfm.config import MatchConfig
+from lift3d.sfm.geometry import fundamental, intrinsics, project, world_to_camera
+from lift3d.sfm.matching import match_pair
+from lift3d.sfm.triangulation import triangulate_tracks
+
+F = 80.0
+SIZE = 64
+
+
+def ring_cameras(n=6, radius=2.0, height=0.3, target=(0.0, 0.0, 0.0)):
+    """OpenGL cameras on an arc around ``target``, all looking at it."""
+    c2w = []
+    for k in range(n):
+        a = np.radians(-40 + 80 * k / max(n - 1, 1))
+        eye = np.array([radius * np.sin(a), -radius * np.cos(a), height])
+        c2w.append(look_at(eye, np.asarray(target, float)))
+    return Cameras(c2w=np.stack(c2w), fx=F, fy=F, cx=SIZE / 2, cy=SIZE / 2, width=SIZE, height=SIZE)
+
+
+def observe(cams, xyz, noise=0.0, seed=0):
+    """Every point seen by every camera: view, ideal pixel and track arrays."""
+    r, t = world_to_camera(cams)
+    k = intrinsics(cams)
+    n_v, n_p = len(cams), len(xyz)
+    view = np.tile(np.arange(n_v), n_p)
+    track = np.repeat(np.arange(n_p), n_v)
+    p, z, _ = project(r, t, k, view, xyz[track])
+    p = p + np.random.default_rng(seed).normal(0, noise, p.shape) if noise else p
+    return r, t, k, view, p, track, z
+
+
+# ------------------------------------------------------------------------------------------ triangulation
+def test_triangulation_recovers_points_without_noise():
+    cams = ring_cameras()
+    xyz = np.random.default_rng(1).uniform(-0.4, 0.4, (50, 3))
+    r, t, k, view, p, track, _ = observe(cams, xyz)
+    out = triangulate_tracks(r, t, k, view, p, track, TrackConfig())
+    assert sum(out.dropped.values()) == 0
+    np.testing.assert_allclose(out.xyz, xyz, atol=1e-7)
+    np.testing.assert_allclose(out.error, 0.0, atol=1e-6)
+    assert np.all(np.bincount(out.obs_point) == len(cams))
+
+
+def test_triangulation_with_pixel_noise_is_within_its_sigma():
+    cams = ring_cameras()
+    xyz = np.random.default_rng(2).uniform(-0.4, 0.4, (400, 3))
+    r, t, k, view, p, track, z_true = observe(cams, xyz, noise=0.5, seed=3)
+    out = triangulate_tracks(r, t, k, view, p, track, TrackConfig(sigma_floor=0.5))
+    assert len(out.xyz) == len(xyz)
+    err = np.linalg.norm(out.xyz - xyz, axis=1)
+    # 0.5 px at 2 m with f = 80 is 1.25 cm across one ray; six rays over 80 degrees pin the point about that well.
+    assert np.median(err) < 0.02
+    dz = np.abs(out.obs_depth - z_true[out.obs_index])
+    within = np.mean(dz < 2 * out.obs_sigma)
+    assert 0.85 < within <= 1.0  # a calibrated Gaussian gives 0.95
+    assert 0.3 < np.median(out.error) < 0.8
+
+
+def test_points_behind_outside_short_inconsistent_and_flat_are_dropped_and_counted():
+    cams = ring_cameras()
+    r, t, k = *world_to_camera(cams), intrinsics(cams)
+    good = np.array([[0.1, 0.0, 0.1], [-0.2, 0.1, 0.0], [0.0, -0.1, 0.2]])
+    behind = np.array([[0.0, -6.0, 0.0]])  # behind every camera (they look towards +y from y < 0)
+    outside = np.array([[0.0, 0.0, 1.2]])  # in front of the cameras, above the box
+    rows = []
+    for kind, pts in (("good", good), ("behind", behind), ("outside", outside)):
+        for x in pts:
+            v = np.arange(len(cams))
+            p, _, _ = project(r, t, k, v, np.repeat(x[None], len(v), 0))
+            rows.append((kind, v, p))
+    # A two-view track, and a track whose observations are of different points (no consistent 3D point).
+    v2 = np.array([0, 1])
+    rows.append(("short", v2, project(r, t, k, v2, np.repeat(good[:1], 2, 0))[0]))
+    v4 = np.arange(4)
+    mixed = np.stack([good[0], good[1], good[2], good[0] + [0.3, 0.0, 0.2]])
+    rows.append(("inconsistent", v4, project(r, t, k, v4, mixed)[0]))
+    view = np.concatenate([v for _, v, _ in rows])
+    p = np.concatenate([q for _, _, q in rows])
+    track = np.concatenate([np.full(len(v), i) for i, (_, v, _) in enumerate(rows)])
+    aabb = np.array([[-1.0, -1.0, -0.5], [1.0, 1.0, 0.5]])
+    out = triangulate_tracks(r, t, k, view, p, track, TrackConfig(box_margin=0.05), aabb=aabb)
+    assert out.dropped == {"short track": 1, "behind camera": 1, "large error": 1, "small angle": 0,
+                           "outside box": 1}
+    np.testing.assert_allclose(np.sort(out.xyz, axis=0), np.sort(good, axis=0), atol=1e-6)
+    # Unbounded scenes keep points outside their (foreground) box.
+    out = triangulate_tracks(r, t, k, view, p, track, TrackConfig(), aabb=aabb, bounded=False)
+    assert out.dropped["outside box"] == 0 and len(out.xyz) == 4
+
+
+def test_tiny_baseline_is_dropped_as_small_angle():
+    eye = np.array([0.0, -3.0, 0.0])
+    c2w = [look_at(eye + [0.002 * k, 0, 0], np.zeros(3)) for k in range(4)]
+    cams = Cameras(c2w=np.stack(c2w), fx=F, fy=F, cx=SIZE / 2, cy=SIZE / 2, width=SIZE, height=SIZE)
+    r, t, k, view, p, track, _ = observe(cams, np.array([[0.1, 0.0, 0.05], [0.0, 0.2, -0.1]]))
+    out = triangulate_tracks(r, t, k, view, p, track, TrackConfig(min_triangulation_angle=1.0))
+    assert out.dropped["small angle"] == 2 and len(out.xyz) == 0
+
+
+# ------------------------------------------------------------------------------------------ matching
+def test_epipolar_check_rejects_matches_that_break_the_known_geometry():
+    cams = ring_cameras(n=2)
+    r, t, k = *world_to_camera(cams), intrinsics(cams)
+    xyz = np.random.default_rng(4).uniform(-0.3, 0.3, (30, 3))
+    pi, _, _ = project(r, t, k, np.zeros(30, int), xyz)
+    pj, _, _ = project(r, t, k, np.ones(30, int), xyz)
+    desc = np.random.default_rng(5).normal(size=(30, 128)).astype(np.float32)
+    desc /= np.linalg.norm(desc, axis=1, keepdims=True)
+    # Swap the positions of the highest and the lowest keypoint in view j (far apart across the nearly
+    # horizontal epipolar lines): their descriptors still match perfectly, their geometry does not.
+    a, b = int(np.argmin(pj[:, 1])), int(np.argmax(pj[:, 1]))
+    pj_wrong = pj.copy()
+    pj_wrong[[a, b]] = pj[[b, a]]
+    f = fundamental(r, t, k, 0, 1)
+    for guided in (False, True):
+        m, _ = match_pair(desc, desc, pi, pj, f, MatchConfig(guided=guided))
+        assert sorted(map(tuple, m.tolist())) == [(c, c) for c in range(30)]
+        m, _ = match_pair(desc, desc, pi, pj_wrong, f, MatchConfig(guided=guided, max_epipolar_error=1.0))
+        pairs = set(map(tuple, m.tolist()))
+        assert pairs == {(c, c) for c in range(30)} - {(a, a), (b, b)}
+
+
+# ------------------------------------------------------------------------------------------ scenes
+def textured_plane_scene(root, n=4, depth_noise=False):
+    """Cameras above a textured floor z = 0 (rendered exactly by ray casting onto the plane)."""
+    rng = np.random.default_rng(6)
+    tex = cv2.GaussianBlur(rng.uniform(0, 255, (512, 512)).astype(np.float32), (0, 0), 2.0)
+    tex = cv2.normalize(tex, None, 0, 255, cv2.NORM_MINMAX)
+    c2w = [look_at(np.array([-0.45 + 0.3 * k, -1.2, 1.6]), np.array([0.0, 0.3, 0.0])) for k in range(n)]
+    cams = Cameras(c2w=np.stack(c2w), fx=F, fy=F, cx=SIZE / 2, cy=SIZE / 2, width=SIZE, height=SIZE)
+    cats = [Category(1, "floor", False)]
+    depths = []
+    with SceneWriter(root, cats) as w:
+        for i in range(n):
+            v, u = np.mgrid[0:SIZE, 0:SIZE]
+            o, d = cams.rays(i, u.ravel(), v.ravel())
+            s = -o[:, 2] / d[:, 2]
+            x = o + d * s[:, None]
+            mx = ((x[:, 0] + 2.0) / 4.0 * 512 - 0.5).reshape(SIZE, SIZE).astype(np.float32)
+            my = ((x[:, 1] + 2.0) / 4.0 * 512 - 0.5).reshape(SIZE, SIZE).astype(np.float32)
+            grey = cv2.remap(tex, mx, my, cv2.INTER_LINEAR)
+            img = np.repeat(np.clip(grey, 0, 255).astype(np.uint8)[..., None], 3, axis=2)
+            z = (s * (d @ cams.forward[i])).reshape(SIZE, SIZE)
+            depths.append(z)
+            w.add_frame(f"f{i}", img, c2w[i], (F, F, SIZE / 2, SIZE / 2), panoptic=np.ones((SIZE, SIZE), np.int64),
+                        segments=[Segment(1, 1)], depth=z)
+        w.set_scene_box("bounded", np.array([[-2.0, -2.0, -0.3], [2.0, 2.0, 2.0]]))
+        w.set_splits([f"images/f{i}.png" for i in range(n)])
+    return depths
+
+
+def test_plane_sweep_recovers_a_textured_plane(tmp_path):
+    depths = textured_plane_scene(tmp_path / "plane")
+    scene = load_scene(tmp_path / "plane")
+    cfg = SfmConfig()
+    cfg.dense.consistent_views = 1
+    dense = plane_sweep_scene(scene, config=cfg)
+    assert len(dense) == 4
+    for d, s, gt in zip(dense.depth, dense.sigma, depths):
+        valid = d > 0
+        assert valid.mean() > 0.5
+        rel = np.abs(d[valid] - gt[valid]) / gt[valid]
+        assert np.median(rel) < 0.01 and np.mean(rel < 0.03) > 0.9
+        assert np.all(s[valid] > 0) and np.all(s[~valid] == 0)
+
+
+def test_triangulate_scene_on_a_textured_plane_and_the_cli_round_trip(tmp_path, capsys):
+    depths = textured_plane_scene(tmp_path / "plane")
+    scene = load_scene(tmp_path / "plane")
+    sp = triangulate_scene(scene)
+    assert len(sp) > 50 and sp.info["warnings"] == []
+    rel = []
+    for k in range(len(scene)):
+        obs = sp.frame_observations(k)
+        c = obs["uv"].astype(int)
+        rel.append(np.abs(obs["depth"] - depths[k][c[:, 1], c[:, 0]]) / obs["depth"])
+    assert np.median(np.concatenate(rel)) < 0.01
+    rc = cli_main(["triangulate", "--data", str(tmp_path / "plane"), "--dense", "--quiet",
+                   "--dense.consistent-views", "1"])
+    assert rc == 0
+    out = capsys.readouterr().out
+    assert "points, median reprojection error" in out and "dropped: short track" in out and "dense:" in out
+    scene = load_scene(tmp_path / "plane")
+    scene.validate()
+    loaded = scene.sparse_points()
+    assert len(loaded) > 50 and loaded.frame_names == [f.name for f in scene.frames]
+    d, s = scene.mvs_depth(1)
+    assert (d > 0).mean() > 0.5 and np.all(s[d > 0] > 0)
+    meta = json.loads((tmp_path / "plane" / "transforms.json").read_text())
+    assert meta["sparse_points"]["source"] == "lift3d triangulate"
+    assert meta["frames"][0]["mvs_depth_file_path"] == "mvs/depth/f0.png"
+
+
+def test_degenerate_baseline_is_a_warning_not_a_crash(tmp_path, capsys):
+    textured_plane_scene(tmp_path / "plane")
+    meta = json.loads((tmp_path / "plane" / "transforms.json").read_text())
+    for fr in meta["frames"]:  # every camera at the same place: rotation only
+        fr["transform_matrix"] = meta["frames"][0]["transform_matrix"]
+    (tmp_path / "plane" / "transforms.json").write_text(json.dumps(meta))
+    rc = cli_main(["triangulate", "--data", str(tmp_path / "plane"), "--dense", "--quiet"])
+    assert rc == 0
+    captured = capsys.readouterr()
+    assert "sparse: no points" in captured.out
+    assert "warning: no view pairs" in captured.err and "warning: only 0 points" in captured.err
+    assert load_scene(tmp_path / "plane").sparse_points() is not None
+
+
+# ------------------------------------------------------------------------------------------ storage
+def small_sparse(names):
+    return SparsePoints(
+        xyz=np.array([[0.0, 0.1, 0.2], [1.0, 1.5, -0.5]]), rgb=np.array([[1, 2, 3], [250, 128, 0]], np.uint8),
+        error=np.array([0.3, 0.7], np.float32), track_length=np.array([2, 1], np.int32), frame_names=names,
+        obs_frame=np.array([1, 0, 1], np.int32), obs_point=np.array([0, 0, 1], np.int32),
+        obs_uv=np.array([[10.5, 3.25], [1.0, 2.0], [30.0, 31.0]], np.float32),
+        obs_depth=np.array([1.5, 2.0, 2.5], np.float32), obs_sigma=np.array([0.01, 0.02, 0.03], np.float32),
+        info={"source": "test"})
+
+
+def test_sparse_points_and_mvs_depth_round_trip(tmp_path):
+    textured_plane_scene(tmp_path / "s", n=2)
+    # Names in another order than the scene's: the reader maps them to scene frame indices.
+    write_sparse_points(tmp_path / "s", small_sparse(["f1", "f0"]))
+    scene = load_scene(tmp_path / "s")
+    sp = scene.sparse_points()
+    np.testing.assert_allclose(sp.xyz, [[0.0, 0.1, 0.2], [1.0, 1.5, -0.5]], atol=1e-7)
+    assert sp.rgb.tolist() == [[1, 2, 3], [250, 128, 0]] and sp.track_length.tolist() == [2, 1]
+    assert sp.frame_names == ["f0", "f1"] and sp.obs_frame.tolist() == [0, 1, 0]
+    np.testing.assert_allclose(sp.frame_observations(0)["uv"], [[10.5, 3.25], [30.0, 31.0]])
+    assert sp.frame_observations(1)["sigma"].tolist() == pytest.approx([0.02])
+    depth = np.full((SIZE, SIZE), 2.0, np.float32)
+    depth[:10] = 0
+    sigma = np.where(depth > 0, 0.0002, 0).astype(np.float32)  # below one unit (1 mm): stored as 1 mm
+    write_mvs_depth(tmp_path / "s", DenseDepth(["f1"], [depth], [sigma]), 1e-3)
+    scene = load_scene(tmp_path / "s")
+    assert scene.mvs_depth(0) is None
+    d, s = scene.mvs_depth(1)
+    np.testing.assert_allclose(d, depth, atol=5e-4)
+    assert np.all(s[depth > 0] == pytest.approx(1e-3)) and np.all(s[depth == 0] == 0)
+    scene.validate()
+
+
+@pytest.mark.parametrize("corrupt,problem", [
+    (lambda a: a.pop("sigma"), "arrays ['sigma'] are missing"),
+    (lambda a: a.__setitem__("point", np.array([0, 0, 5], np.int32)), "point indices must lie in [0, 2)"),
+    (lambda a: a.__setitem__("frame_names", np.array(["f1", "nope"])), "frames ['nope'] are not in transforms.json"),
+    (lambda a: a.__setitem__("depth", np.array([1.5, -2.0, 2.5], np.float32)), "depth and sigma must be positive"),
+    (lambda a: a.__setitem__("uv", np.zeros((2, 2), np.float32)), "one entry per observation"),
+    (lambda a: a.__setitem__("point", np.array([0, 1, 1], np.int32)), "track_length does not match"),
+])
+def test_bad_sparse_files_are_one_line_errors_naming_the_file(tmp_path, corrupt, problem):
+    textured_plane_scene(tmp_path / "s", n=2)
+    write_sparse_points(tmp_path / "s", small_sparse(["f1", "f0"]))
+    path = tmp_path / "s" / "sparse" / "observations.npz"
+    arrays = dict(np.load(path))
+    corrupt(arrays)
+    np.savez(path, **arrays)
+    with pytest.raises(InputError) as err:
+        load_scene(tmp_path / "s").sparse_points()
+    assert problem in err.value.problem
+    where = "points3D.ply" if "track_length" in problem else "observations.npz"
+    assert err.value.where.endswith(where) and "\n" not in str(err.value)
+
+
+def test_bad_sparse_entries_and_files(tmp_path):
+    textured_plane_scene(tmp_path / "s", n=2)
+    write_sparse_points(tmp_path / "s", small_sparse(["f1", "f0"]))
+    (tmp_path / "s" / "sparse" / "observations.npz").write_bytes(b"not a zip")
+    with pytest.raises(InputError, match="not a readable .npz file"):
+        load_scene(tmp_path / "s").sparse_points()
+    (tmp_path / "s" / "sparse" / "points3D.ply").unlink()
+    with pytest.raises(InputError) as err:
+        load_scene(tmp_path / "s")
+    assert err.value.where.endswith("points3D.ply") and "file not found" in err.value.problem
+    meta = json.loads((tmp_path / "s" / "transforms.json").read_text())
+    meta["sparse_points"] = {"points": 3}
+    (tmp_path / "s" / "transforms.json").write_text(json.dumps(meta))
+    with pytest.raises(InputError, match="sparse_points: needs 'points' and 'observations'"):
+        load_scene(tmp_path / "s")
+
+
+def test_bad_settings_name_the_flag(tmp_path, capsys):
+    textured_plane_scene(tmp_path / "s", n=2)
+    rc = cli_main(["triangulate", "--data", str(tmp_path / "s"), "--dense.window", "4"])
+    assert rc == 2
+    assert "--dense.window: must be an odd number >= 3" in capsys.readouterr().err
+    rc = cli_main(["triangulate", "--data", str(tmp_path / "s"), "--features.detector", "surf"])
+    assert rc == 2
+    assert "--features.detector" in capsys.readouterr().err
