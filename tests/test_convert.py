@@ -121,20 +121,21 @@ MODEL_IDS = {name: mid for mid, (name, _) in colmap_convert.COLMAP_CAMERA_MODELS
 
 # --------------------------------------------------------------------------------------------- writers
 def write_colmap_text(model_dir, cameras, images, points=None):
-    """cameras: [(id, model, w, h, params)]; images: [(id, qvec, tvec, cam_id, name)]."""
+    """cameras: [(id, model, w, h, params)]; images: [(id, qvec, tvec, cam_id, name, keypoints)] with keypoints
+    [(x, y, point3D_id)]; points: [(id, xyz, rgb, error, track [(image_id, point2D_idx)])]."""
     model_dir.mkdir(parents=True, exist_ok=True)
     lines = ["# Camera list with one line of data per camera:", "#   CAMERA_ID, MODEL, WIDTH, HEIGHT, PARAMS[]"]
     lines += [" ".join([str(cid), model, str(w), str(h)] + [repr(float(p)) for p in params])
               for cid, model, w, h, params in cameras]
     (model_dir / "cameras.txt").write_text("\n".join(lines) + "\n")
     lines = ["# Image list with two lines of data per image:"]
-    for k, (iid, q, t, cid, name) in enumerate(images):
+    for iid, q, t, cid, name, kps in images:
         lines.append(" ".join([str(iid)] + [repr(float(v)) for v in (*q, *t)] + [str(cid), name]))
-        # Alternate an empty keypoint line with a non-empty one: both occur in real files.
-        lines.append("" if k % 2 else "10.5 12.25 -1 3.0 4.0 7")
+        lines.append(" ".join(f"{x!r} {y!r} {pid}" for x, y, pid in kps))  # may be empty, as in real files
     (model_dir / "images.txt").write_text("\n".join(lines) + "\n")
     if points is not None:
-        body = [f"{k + 1} {x!r} {y!r} {z!r} 128 128 128 0.5 1 0" for k, (x, y, z) in enumerate(points)]
+        body = [" ".join([str(pid), *(repr(float(v)) for v in xyz), *(str(int(c)) for c in rgb), repr(err)]
+                         + [f"{iid} {idx}" for iid, idx in track]) for pid, xyz, rgb, err, track in points]
         (model_dir / "points3D.txt").write_text("# 3D point list\n" + "\n".join(body) + "\n")
 
 
@@ -145,16 +146,38 @@ def write_colmap_binary(model_dir, cameras, images, points=None):
         buf += struct.pack("<IiQQ", cid, MODEL_IDS[model], w, h) + struct.pack(f"<{len(params)}d", *params)
     (model_dir / "cameras.bin").write_bytes(buf)
     buf = struct.pack("<Q", len(images))
-    for k, (iid, q, t, cid, name) in enumerate(images):
+    for iid, q, t, cid, name, kps in images:
         buf += struct.pack("<I7dI", iid, *q, *t, cid) + name.encode() + b"\0"
-        npts = k % 3  # some images with keypoints, some without
-        buf += struct.pack("<Q", npts) + b"".join(struct.pack("<ddq", 1.0 * j, 2.0 * j, -1) for j in range(npts))
+        buf += struct.pack("<Q", len(kps)) + b"".join(struct.pack("<ddq", x, y, pid) for x, y, pid in kps)
     (model_dir / "images.bin").write_bytes(buf)
     if points is not None:
         buf = struct.pack("<Q", len(points))
-        for k, (x, y, z) in enumerate(points):
-            buf += struct.pack("<Q3d3BdQ", k + 1, x, y, z, 1, 2, 3, 0.5, 2) + struct.pack("<IIII", 1, 0, 2, 0)
+        for pid, xyz, rgb, err, track in points:
+            buf += struct.pack("<Q3d3BdQ", pid, *xyz, *rgb, err, len(track))
+            buf += b"".join(struct.pack("<II", iid, idx) for iid, idx in track)
         (model_dir / "points3D.bin").write_bytes(buf)
+
+
+def observe_points(images, points, model, params):
+    """Keypoints and tracks of world ``points`` seen by ``images`` (COLMAP's own projection; points outside
+    an image or behind it are not seen), with an unmatched keypoint first in every other image so that
+    POINT2D_IDX differs from the point's index. Returns images with keypoints and COLMAP point records."""
+    tracks = {k: [] for k in range(len(points))}
+    out = []
+    for n, (iid, q, t, cid, name) in enumerate(images):
+        r_w2c = colmap_convert.qvec_to_rotmat(q)
+        kps = [(3.25, 4.5, -1)] if n % 2 else []
+        for k, x in enumerate(points):
+            if (r_w2c @ x + t)[2] <= 0:
+                continue
+            u, v = colmap_pixel(model, params, r_w2c, t, np.asarray(x, float))
+            if 0 <= u < W and 0 <= v < H:
+                tracks[k].append((iid, len(kps)))
+                kps.append((float(u), float(v), k + 1))
+        out.append((iid, q, t, cid, name, kps))
+    records = [(k + 1, tuple(points[k]), (10 * k % 256, 20, 30), 0.25 + 0.01 * k, tracks[k])
+               for k in range(len(points))]
+    return out, records
 
 
 def label_maps(k):
@@ -221,8 +244,14 @@ def colmap_capture(root, fmt="txt", model="PINHOLE", n=5, predictions="two-png",
     for k, (r_c2w, eye) in enumerate(rigs):
         r_w2c = r_c2w.T
         images.append((100 - k, rotmat_to_qvec(r_w2c), -r_w2c @ eye, 1, f"{stems[k]}.jpg"))
+    records = None
+    if points is not None:
+        images, records = observe_points(images, points, model, MODEL_PARAMS[model])
+    else:
+        # Images without points: an empty keypoint line and one with an untriangulated keypoint (both occur).
+        images = [(*im, [(10.5, 12.25, -1)] if k % 2 else []) for k, im in enumerate(images)]
     writer = write_colmap_text if fmt == "txt" else write_colmap_binary
-    writer(root / "sparse" / "0", cams, images[::-1], points)
+    writer(root / "sparse" / "0", cams, images[::-1], records)
     if predictions == "two-png":
         write_two_png_predictions(root / "pred", stems)
         (root / "categories.json").write_text(json.dumps(CATEGORIES))
@@ -312,6 +341,78 @@ def test_colmap_layouts_and_scene_box(tmp_path):
                                     predictions=root / "pred", options=QUIET,
                                     categories=[Category(c["id"], c["name"], bool(c["isthing"])) for c in CATEGORIES])
     np.testing.assert_allclose(scene2.cameras.c2w, scene.cameras.c2w)
+
+
+POINTS = [tuple(TARGET + d) for d in np.random.default_rng(3).uniform(-0.4, 0.4, (25, 3))]
+
+
+@pytest.mark.parametrize("fmt,model", [("txt", "PINHOLE"), ("bin", "PINHOLE"), ("bin", "OPENCV")])
+def test_colmap_points3d_are_kept_as_sparse_points(tmp_path, fmt, model):
+    stems, _ = colmap_capture(tmp_path / "ws", fmt, model=model, points=POINTS)
+    scene = convert_colmap(tmp_path / "ws", tmp_path / "out")
+    meta = json.loads((tmp_path / "out" / "transforms.json").read_text())
+    assert meta["sparse_points"]["source"] == "colmap"
+    assert meta["sparse_points"]["points"] == "sparse/points3D.ply"
+    sp = scene.sparse_points()
+    assert len(sp) == len(POINTS)  # every point is seen by at least two of the five cameras
+    np.testing.assert_allclose(sp.xyz, POINTS, atol=1e-6)  # float32 in the PLY
+    np.testing.assert_allclose(sp.error, [0.25 + 0.01 * k for k in range(len(POINTS))], atol=1e-6)
+    assert sp.rgb[:, 1].tolist() == [20] * len(POINTS)
+    assert sp.frame_names == [f.name for f in scene.frames] == stems
+    for k in range(len(scene)):
+        obs = sp.frame_observations(k)
+        # The stored pixel is where the converted camera sees the point; depth is its z in that camera.
+        uv, z = scene.cameras.project(k, sp.xyz[obs["point"]])
+        np.testing.assert_allclose(obs["uv"], uv, atol=2e-4)
+        np.testing.assert_allclose(obs["depth"], z, rtol=1e-5)
+    assert np.all(sp.obs_sigma > 0) and np.all(np.bincount(sp.obs_point) == sp.track_length)
+
+
+def test_colmap_points3d_follow_a_downscale(tmp_path):
+    colmap_capture(tmp_path / "ws", "txt", points=POINTS)
+    scene = colmap_convert.convert(tmp_path / "ws", tmp_path / "out", predictions=tmp_path / "ws" / "pred",
+                                   categories=[Category(c["id"], c["name"], bool(c["isthing"])) for c in CATEGORIES],
+                                   options=WriteOptions(progress=False, downscale=2))
+    sp = scene.sparse_points()
+    for k in range(len(scene)):
+        obs = sp.frame_observations(k)
+        uv, _ = scene.cameras.project(k, sp.xyz[obs["point"]])
+        np.testing.assert_allclose(obs["uv"], uv, atol=2e-4)
+
+
+def test_colmap_points3d_not_matching_the_images_is_one_error(tmp_path):
+    for fmt in ("txt", "bin"):
+        root = tmp_path / fmt
+        colmap_capture(root, fmt, points=POINTS)
+        model = colmap_convert.read_model(root / "sparse" / "0")
+        points = model.points()
+        images, records = [], []
+        for im in model.images.values():
+            kps = [(float(x), float(y), int(p)) for (x, y), p in zip(im.xys, im.point3d_ids)]
+            images.append((im.id, im.qvec, im.tvec, im.camera_id, im.name, kps))
+        for k in range(len(points.ids)):
+            a, b = points.offsets[k], points.offsets[k + 1]
+            records.append((int(points.ids[k]), tuple(points.xyz[k]), tuple(points.rgb[k]), float(points.error[k]),
+                            list(zip(points.track_image[a:b].tolist(), points.track_point2d[a:b].tolist()))))
+        writer = write_colmap_text if fmt == "txt" else write_colmap_binary
+        cams = [(c.id, c.model, c.width, c.height, c.params) for c in model.cameras.values()]
+        pfile = root / "sparse" / "0" / f"points3D.{fmt}"
+        for broken, problem in [
+            (lambda r: r[0][4].__setitem__(0, (42, 0)), "image id 42"),
+            (lambda r: r[1][4].__setitem__(0, (r[1][4][0][0], 99)), "POINT2D_IDX 99 is out of range"),
+            (lambda r: r[2][4].__setitem__(0, r[3][4][0]), "belongs to point 4"),
+        ]:
+            bad = [(pid, xyz, rgb, err, list(track)) for pid, xyz, rgb, err, track in records]
+            broken(bad)
+            writer(root / "sparse" / "0", cams, images, bad)
+            out = tmp_path / f"out_{fmt}"
+            with pytest.raises(InputError) as err:
+                convert_colmap(root, out)
+            assert err.value.where == str(pfile) and problem in err.value.problem, err.value
+            assert not (out / "transforms.json").exists()  # checked before anything is written
+        # --no-points ignores them (the broken file is not read at all).
+        scene = convert_colmap(root, tmp_path / f"ok_{fmt}", keep_points=False)
+        assert scene.sparse_points() is None
 
 
 # --------------------------------------------------------------------------------------------- predictions

@@ -69,6 +69,9 @@ def add_parser(subparsers: argparse._SubParsersAction, verb: str) -> argparse.Ar
                         "images were resized since (default: the images' own size)")
     p.add_argument("--scene-box", action="store_true",
                    help="colmap: write a bounded scene_box around the sparse points (points3D.txt|bin)")
+    p.add_argument("--no-points", action="store_true",
+                   help="colmap: do not keep points3D.txt|bin as the scene's sparse points (kept by default "
+                        "as sparse/points3D.ply + sparse/observations.npz; see docs/scene-format.md)")
     p.add_argument("--downscale", type=int, default=1, metavar="N",
                    help="shrink images, labels and depth by N (intrinsics follow) (default: %(default)s)")
     p.add_argument("--image-format", choices=["png", "jpg"], default="png",
@@ -105,7 +108,7 @@ def run(args: argparse.Namespace) -> int:
             raise InputError("--predictions", "required with --from colmap (2D panoptic predictions per image)")
         scene = colmap.convert(args.src, args.out, predictions=args.predictions, images=args.images,
                                categories=categories, things=things, test_every=args.test_every,
-                               scene_box=args.scene_box, options=options)
+                               scene_box=args.scene_box, keep_points=not args.no_points, options=options)
     elif args.source == "scannet":
         # here, not at module level: keeps `lift3d --help` cheap
         from lift3d.convert import scannet
@@ -132,6 +135,7 @@ def run(args: argparse.Namespace) -> int:
 _ONLY_FOR = {
     "images": ("--images", {"colmap"}),
     "scene_box": ("--scene-box", {"colmap"}),
+    "no_points": ("--no-points", {"colmap"}),
     "predictions": ("--predictions", {"colmap", "scannet"}),
     "intrinsics_size": ("--intrinsics-size", {"scannet", "panoptic-lifting"}),
     "no_depth": ("--no-depth", {"scannet", "panoptic-lifting"}),

@@ -46,7 +46,7 @@ SOURCES = {
 # (and nothing else the user may keep beside them): the reader discovers ``panoptic/<name>.png`` and
 # ``gt/panoptic/<name>.png`` by name, so stale files from an earlier conversion would leak into the new one.
 _SCENE_OUTPUTS = ("transforms.json", "panoptic.json", "images", "panoptic", "semantics", "instances",
-                  "confidence", "depth", "masks", "gt")
+                  "confidence", "depth", "masks", "gt", "sparse", "mvs")
 
 
 @dataclass
@@ -428,4 +428,7 @@ def summary(scene: Scene) -> str:
         parts.append("ground truth")
     if scene.has_depth:
         parts.append("depth")
+    if scene.sparse_points_paths is not None:
+        sparse = scene.sparse_points()
+        parts.append(f"{len(sparse)} sparse points (median error {sparse.median_error:.2f} px)")
     return f"wrote {scene.root}: " + "; ".join(parts)

@@ -22,7 +22,7 @@ COLMAP versions add ``rigs``/``frames`` files, but keep writing each image's com
 from __future__ import annotations
 
 import struct
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Callable
 
@@ -30,8 +30,12 @@ import numpy as np
 
 from lift3d.convert import FrameInput, WriteOptions, note, split_every, write_scene
 from lift3d.convert.predictions import PredictionFolder
-from lift3d.data.scene import Category, Scene
+from lift3d.data.scene import Category, Scene, load_scene
+from lift3d.data.stereo import SparsePoints, write_sparse_points
 from lift3d.errors import InputError
+from lift3d.sfm.config import TrackConfig
+from lift3d.sfm.geometry import ideal_pixels, intrinsics, project, world_to_camera
+from lift3d.sfm.triangulation import observation_depths
 
 #: COLMAP camera model id → (name, number of parameters), from COLMAP's camera model list.
 COLMAP_CAMERA_MODELS: dict[int, tuple[str, int]] = {
@@ -66,13 +70,30 @@ class ColmapCamera:
 
 @dataclass
 class ColmapImage:
-    """One registered image of ``images.txt|bin``: world-to-camera quaternion (w first) and translation."""
+    """One registered image of ``images.txt|bin``: world-to-camera quaternion (w first) and translation,
+    and its keypoints (``xys [n, 2]`` in COLMAP pixels, ``point3d_ids [n]``, -1 = not triangulated)."""
 
     id: int
     qvec: np.ndarray
     tvec: np.ndarray
     camera_id: int
     name: str
+    xys: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))
+    point3d_ids: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
+
+
+@dataclass
+class ColmapPoints:
+    """``points3D.txt|bin``: ``P`` points and their tracks, flattened (``track_*[offsets[k]:offsets[k+1]]``
+    belong to point ``k``)."""
+
+    ids: np.ndarray  # [P] int64 POINT3D_ID
+    xyz: np.ndarray  # [P, 3] float64
+    rgb: np.ndarray  # [P, 3] uint8
+    error: np.ndarray  # [P] float64, mean reprojection error (pixels)
+    track_image: np.ndarray  # [T] int64 IMAGE_ID
+    track_point2d: np.ndarray  # [T] int64 POINT2D_IDX (index into that image's keypoints)
+    offsets: np.ndarray  # [P + 1] int64
 
 
 @dataclass
@@ -84,12 +105,21 @@ class ColmapModel:
     cameras: dict[int, ColmapCamera]
     images: dict[int, ColmapImage]
 
-    def points_xyz(self) -> np.ndarray | None:
-        """``[N, 3]`` float64 sparse points, or None when the model has no ``points3D`` file."""
-        p = self.path / f"points3D.{self.format}"
+    @property
+    def points_file(self) -> Path:
+        return self.path / f"points3D.{self.format}"
+
+    def points(self) -> ColmapPoints | None:
+        """The 3D points with their tracks, or None when the model has no ``points3D`` file."""
+        p = self.points_file
         if not p.is_file():
             return None
         return read_points3d_binary(p) if self.format == "bin" else read_points3d_text(p)
+
+    def points_xyz(self) -> np.ndarray | None:
+        """``[N, 3]`` float64 sparse points, or None when the model has no ``points3D`` file."""
+        pts = self.points()
+        return None if pts is None else pts.xyz
 
     @property
     def images_file(self) -> Path:
@@ -213,6 +243,7 @@ def read_images_text(path: Path) -> dict[int, ColmapImage]:
         if not line or line.startswith("#"):
             continue
         # Like COLMAP's own reader: the line after an image line is its keypoint list, even when empty.
+        points_line = lines[k] if k < len(lines) else (lineno + 1, "")
         k += 1
         tok = line.split(maxsplit=9)  # NAME is the rest of the line (it may contain spaces)
         if len(tok) < 10:
@@ -222,25 +253,45 @@ def read_images_text(path: Path) -> dict[int, ColmapImage]:
             image = ColmapImage(int(tok[0]), np.array(vals[:4]), np.array(vals[4:]), int(tok[8]), tok[9].strip())
         except ValueError:
             raise InputError(path, f"line {lineno}: not numbers where numbers are expected") from None
+        ptok = points_line[1].split()
+        if len(ptok) % 3:
+            raise InputError(path, f"line {points_line[0]}: POINTS2D must be triples X Y POINT3D_ID")
+        try:
+            trip = np.array([float(t) for t in ptok], np.float64).reshape(-1, 3)
+        except ValueError:
+            raise InputError(path, f"line {points_line[0]}: not numbers where numbers are expected") from None
+        image.xys, image.point3d_ids = trip[:, :2], trip[:, 2].astype(np.int64)
         images[image.id] = image
     return images
 
 
-def read_points3d_text(path: Path) -> np.ndarray:
-    """The ``X Y Z`` columns of ``points3D.txt`` as ``[N, 3]`` float64."""
-    xyz = []
+def read_points3d_text(path: Path) -> ColmapPoints:
+    """Parse ``points3D.txt`` (``POINT3D_ID X Y Z R G B ERROR TRACK[] as (IMAGE_ID, POINT2D_IDX)``)."""
+    ids, xyz, rgb, err, timg, tidx, counts = [], [], [], [], [], [], []
     for lineno, line in _data_lines(path):
         line = line.strip()
         if not line or line.startswith("#"):
             continue
         tok = line.split()
+        if len(tok) < 8 or (len(tok) - 8) % 2:
+            raise InputError(path, f"line {lineno}: expected POINT3D_ID X Y Z R G B ERROR TRACK[] "
+                                   "(IMAGE_ID POINT2D_IDX pairs)")
         try:
+            ids.append(int(tok[0]))
             xyz.append([float(t) for t in tok[1:4]])
+            rgb.append([int(t) for t in tok[4:7]])
+            err.append(float(tok[7]))
+            track = [int(t) for t in tok[8:]]
         except ValueError:
             raise InputError(path, f"line {lineno}: not numbers where numbers are expected") from None
-        if len(xyz[-1]) != 3:
-            raise InputError(path, f"line {lineno}: expected POINT3D_ID X Y Z R G B ERROR TRACK[]")
-    return np.asarray(xyz, np.float64).reshape(-1, 3)
+        timg += track[0::2]
+        tidx += track[1::2]
+        counts.append(len(track) // 2)
+    return ColmapPoints(
+        ids=np.asarray(ids, np.int64), xyz=np.asarray(xyz, np.float64).reshape(-1, 3),
+        rgb=np.clip(np.asarray(rgb, np.int64).reshape(-1, 3), 0, 255).astype(np.uint8),
+        error=np.asarray(err, np.float64), track_image=np.asarray(timg, np.int64),
+        track_point2d=np.asarray(tidx, np.int64), offsets=np.concatenate([[0], np.cumsum(counts)]).astype(np.int64))
 
 
 # ----------------------------------------------------------------------------------------------- binary files
@@ -301,8 +352,11 @@ def read_cameras_binary(path: Path) -> dict[int, ColmapCamera]:
     return cams
 
 
+_POINT2D = np.dtype([("x", "<f8"), ("y", "<f8"), ("id", "<i8")])
+
+
 def read_images_binary(path: Path) -> dict[int, ColmapImage]:
-    """Parse ``images.bin`` (keypoints are skipped: lift3d needs only the poses)."""
+    """Parse ``images.bin`` (poses and keypoints)."""
     r = _BinaryReader(path)
     (n,) = r.read("Q")
     images: dict[int, ColmapImage] = {}
@@ -310,23 +364,35 @@ def read_images_binary(path: Path) -> dict[int, ColmapImage]:
         iid, qw, qx, qy, qz, tx, ty, tz, cam_id = r.read("I7dI")
         name = r.cstring()
         (n_points,) = r.read("Q")
+        start = r.pos
         r.skip(24 * n_points)  # float64 x, float64 y, int64 point3D_id
-        images[iid] = ColmapImage(iid, np.array([qw, qx, qy, qz]), np.array([tx, ty, tz]), cam_id, name)
+        pts = np.frombuffer(r.buf, _POINT2D, count=n_points, offset=start)
+        images[iid] = ColmapImage(iid, np.array([qw, qx, qy, qz]), np.array([tx, ty, tz]), cam_id, name,
+                                  np.stack([pts["x"], pts["y"]], -1).astype(np.float64), pts["id"].astype(np.int64))
     r.done()
     return images
 
 
-def read_points3d_binary(path: Path) -> np.ndarray:
-    """The positions of ``points3D.bin`` as ``[N, 3]`` float64."""
+def read_points3d_binary(path: Path) -> ColmapPoints:
+    """Parse ``points3D.bin``."""
     r = _BinaryReader(path)
     (n,) = r.read("Q")
+    ids = np.empty(n, np.int64)
     xyz = np.empty((n, 3), np.float64)
+    rgb = np.empty((n, 3), np.uint8)
+    err = np.empty(n, np.float64)
+    counts = np.empty(n, np.int64)
+    tracks = []
     for k in range(n):
-        _pid, x, y, z, _r, _g, _b, _err, track_len = r.read("Q3d3BdQ")
-        xyz[k] = (x, y, z)
+        pid, x, y, z, cr, cg, cb, e, track_len = r.read("Q3d3BdQ")
+        ids[k], xyz[k], rgb[k], err[k], counts[k] = pid, (x, y, z), (cr, cg, cb), e, track_len
+        start = r.pos
         r.skip(8 * track_len)  # uint32 image_id, uint32 point2D_idx
+        tracks.append(np.frombuffer(r.buf, "<u4", count=2 * track_len, offset=start))
     r.done()
-    return xyz
+    flat = np.concatenate(tracks).astype(np.int64) if tracks else np.zeros(0, np.int64)
+    return ColmapPoints(ids=ids, xyz=xyz, rgb=rgb, error=err, track_image=flat[0::2], track_point2d=flat[1::2],
+                        offsets=np.concatenate([[0], np.cumsum(counts)]).astype(np.int64))
 
 
 # ----------------------------------------------------------------------------------------------- model folder
@@ -388,6 +454,88 @@ def default_images_dir(src: Path, model_dir: Path) -> Path:
     raise InputError(src / "images", "image folder not found (pass --images DIR)")
 
 
+def check_points(points: ColmapPoints, model: ColmapModel) -> None:
+    """Check that every track entry of ``points3D`` names a registered image and one of its keypoints, and
+    that the keypoint says it belongs to that point.
+
+    Raises
+    ------
+    InputError
+        Naming the ``points3D`` file: an unknown image id, a POINT2D_IDX out of range, a keypoint that
+        ``images`` gives to another point (a points3D from another reconstruction), or non-finite points.
+    """
+    path = model.points_file
+    if not np.all(np.isfinite(points.xyz)):
+        raise InputError(path, "point coordinates are not finite")
+    owner = np.repeat(points.ids, np.diff(points.offsets))
+    known = np.array(sorted(model.images), np.int64)
+    unknown = ~np.isin(points.track_image, known)
+    if unknown.any():
+        k = int(np.flatnonzero(unknown)[0])
+        raise InputError(path, f"point {owner[k]}: its track names image id {points.track_image[k]}, which "
+                               f"{model.images_file.name} does not list (points3D does not match the images)")
+    for iid in np.unique(points.track_image):
+        img = model.images[int(iid)]
+        sel = np.flatnonzero(points.track_image == iid)
+        idx = points.track_point2d[sel]
+        bad = idx >= len(img.xys)
+        if bad.any():
+            k = sel[np.flatnonzero(bad)[0]]
+            raise InputError(path, f"point {owner[k]}: POINT2D_IDX {points.track_point2d[k]} is out of range for "
+                                   f"image {iid} ({len(img.xys)} keypoints in {model.images_file.name})")
+        other = img.point3d_ids[idx] != owner[sel]
+        if other.any():
+            k = sel[np.flatnonzero(other)[0]]
+            raise InputError(path, f"point {owner[k]}: keypoint {points.track_point2d[k]} of image {iid} belongs "
+                                   f"to point {img.point3d_ids[points.track_point2d[k]]} in "
+                                   f"{model.images_file.name} (points3D does not match the images)")
+
+
+def sparse_points_from_colmap(points: ColmapPoints, model: ColmapModel, scene: Scene,
+                              frame_of_image: dict[int, int]) -> SparsePoints:
+    """COLMAP's points as the scene's sparse points (call :func:`check_points` first).
+
+    Keypoint positions keep COLMAP's pixel convention (the same as lift3d's), scaled when the written
+    images were resized. Depth and its sigma per observation come from the scene's cameras with the same
+    formula as ``lift3d triangulate`` (:func:`lift3d.sfm.triangulation.observation_depths`). Observations
+    behind their camera are left out, and points left with fewer than two observations; both are counted
+    in ``info["dropped"]``.
+    """
+    cams = scene.cameras
+    n_pts = len(points.ids)
+    point = np.repeat(np.arange(n_pts), np.diff(points.offsets))
+    frame = np.array([frame_of_image[int(i)] for i in points.track_image], np.int64).reshape(-1)
+    uv = np.zeros((len(point), 2))
+    ideal = np.zeros((len(point), 2))
+    for iid in np.unique(points.track_image):
+        img = model.images[int(iid)]
+        cam = model.cameras[img.camera_id]
+        sel = points.track_image == iid
+        f = frame_of_image[int(iid)]
+        scale = np.array([cams.width[f] / cam.width, cams.height[f] / cam.height])
+        uv[sel] = img.xys[points.track_point2d[sel]] * scale
+        ideal[sel] = ideal_pixels(cams, f, uv[sel])
+    r, t = world_to_camera(cams)
+    k = intrinsics(cams)
+    _, z, _ = project(r, t, k, frame, points.xyz[point])
+    front = z > 0
+    counts = np.bincount(point[front], minlength=n_pts)
+    keep_pt = counts >= 2
+    keep = front & keep_pt[point]
+    new_id = np.cumsum(keep_pt) - 1
+    z, sigma, _ = observation_depths(r, t, k, frame[keep], ideal[keep], new_id[point[keep]], points.xyz[keep_pt],
+                                     TrackConfig().sigma_floor)
+    return SparsePoints(
+        xyz=points.xyz[keep_pt], rgb=points.rgb[keep_pt], error=points.error[keep_pt].astype(np.float32),
+        track_length=counts[keep_pt].astype(np.int32), frame_names=[f.name for f in scene.frames],
+        obs_frame=frame[keep].astype(np.int32), obs_point=new_id[point[keep]].astype(np.int32),
+        obs_uv=uv[keep].astype(np.float32), obs_depth=z.astype(np.float32), obs_sigma=sigma.astype(np.float32),
+        info={"source": "colmap", "file": str(model.points_file),
+              "dropped": {"behind camera (observations)": int((~front).sum()),
+                          "fewer than 2 observations": int((~keep_pt).sum())}},
+    )
+
+
 def scene_box_from_points(xyz: np.ndarray, centers: np.ndarray) -> tuple[str, np.ndarray]:
     """A bounded box around the sparse points (1st–99th percentile, so stray points do not inflate it)
     and the camera centres, padded by 5 % per side."""
@@ -408,6 +556,7 @@ def convert(
     things: list[int] | None = None,
     test_every: int = 8,
     scene_box: bool = False,
+    keep_points: bool = True,
     options: WriteOptions | None = None,
 ) -> Scene:
     """Convert a COLMAP model plus per-image 2D panoptic predictions into a scene folder.
@@ -430,6 +579,9 @@ def convert(
         Every N-th image (sorted by name) is a test image; 0 keeps all for training.
     scene_box : bool
         Write a ``bounded`` scene box around the sparse points (needs ``points3D``).
+    keep_points : bool
+        Keep ``points3D`` (when the model has one) as the scene's sparse points: ``sparse/points3D.ply`` +
+        ``sparse/observations.npz``, referenced from ``transforms.json`` (docs/scene-format.md).
     options : WriteOptions, optional
         Output options.
 
@@ -474,19 +626,27 @@ def convert(
             labels=_labels_of(preds, stem), distortion=dist,
         ))
     box = None
+    points = model.points() if (scene_box or keep_points) else None
+    if points is not None:
+        check_points(points, model)  # before anything is written
     if scene_box:
-        xyz = model.points_xyz()
-        if xyz is None:
-            raise InputError(model.path / f"points3D.{model.format}", "file not found (needed by --scene-box)")
+        if points is None:
+            raise InputError(model.points_file, "file not found (needed by --scene-box)")
         centers = np.stack([f.c2w_opencv[:3, 3] for f in frames])
-        box = scene_box_from_points(xyz, centers)
+        box = scene_box_from_points(points.xyz, centers)
     on_disk = sum(1 for p in images_dir.rglob("*") if p.suffix.lower() in (".jpg", ".jpeg", ".png"))
     if on_disk > len(frames):
         note(f"{on_disk - len(frames)} images in {images_dir} are not registered in the COLMAP model "
              "and are left out")
-    return write_scene(out, frames, cats, camera_model=camera_model, splits=split_every(stems, test_every),
-                       scene_box=box, options=options,
-                       extra_meta={"converted_from": {"source": "colmap", "model": str(model.path)}})
+    scene = write_scene(out, frames, cats, camera_model=camera_model, splits=split_every(stems, test_every),
+                        scene_box=box, options=options,
+                        extra_meta={"converted_from": {"source": "colmap", "model": str(model.path)}})
+    if keep_points and points is not None:
+        index = {f.name: k for k, f in enumerate(scene.frames)}
+        frame_of_image = {img.id: index[stem] for img, stem in zip(ordered, stems)}
+        write_sparse_points(out, sparse_points_from_colmap(points, model, scene, frame_of_image))
+        scene = load_scene(out)
+    return scene
 
 
 def _labels_of(preds: PredictionFolder, stem: str) -> Callable:
