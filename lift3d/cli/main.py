@@ -24,6 +24,7 @@ VERBS = {
     "demo": "demo",
     "synth": "synth",
     "convert": "convert",
+    "triangulate": "triangulate",
     "train": "train",
     "render": "render",
     "eval": "evaluate",
