@@ -71,7 +71,7 @@ class TrackConfig:
 
     min_views: int = 3
     """A point must be seen in at least this many views (after outlier observations are removed)."""
-    max_reprojection_error: float = 2.0
+    max_reprojection_error: float = 1.5
     """Pixels: observations reprojecting worse are removed; points left with fewer than min_views are
     dropped (reason 'large error')."""
     min_triangulation_angle: float = 2.0
@@ -81,7 +81,7 @@ class TrackConfig:
     ('outside box'). Unbounded scenes keep points outside their foreground box."""
     refine_iterations: int = 5
     """Gauss-Newton iterations on each point's reprojection error over all its observations."""
-    sigma_floor: float = 0.5
+    sigma_floor: float = 1.0
     """Pixels: the smallest image noise assumed for a point's uncertainty (its own residuals say less
     when it has few observations)."""
 
@@ -90,17 +90,17 @@ class TrackConfig:
 class DenseConfig:
     """Plane-sweep multi-view stereo (``--dense``)."""
 
-    neighbors: int = 5
+    neighbors: int = 6
     """Source views per reference view (the best by overlap, from the same pair selection)."""
     best_k: int = 2
     """Photo-consistency aggregation: mean cost of the best K of the source views (occlusion-robust)."""
     target_angle: float = 10.0
     """Degrees: source views are ranked by overlap and by how close their ray angle is to this (wide angles
     distort the fronto-parallel windows, narrow ones give imprecise depth)."""
-    plane_step: float = 1.5
+    plane_step: float = 1.0
     """Pixels: depth hypotheses are spaced so that the point moves about this much between neighbouring
     planes in the source view that moves most (uniform in inverse depth)."""
-    max_planes: int = 96
+    max_planes: int = 128
     """At most this many planes per view and direction."""
     sweep_up: bool = True
     """Also sweep planes perpendicular to the scene's up direction (the cameras' mean image-up axis):
@@ -112,15 +112,15 @@ class DenseConfig:
     """Images whose longer side exceeds this are matched downscaled to it (depth maps are upsampled back)."""
     min_zncc: float = 0.6
     """Winner's aggregated ZNCC must reach this."""
-    min_margin: float = 0.05
+    min_margin: float = 0.02
     """Winner's ZNCC minus the best ZNCC more than two planes away (uniqueness) must reach this."""
-    min_texture: float = 2.0
+    min_texture: float = 1.0
     """Grey-level standard deviation the reference window needs (ZNCC on flat patches is noise)."""
     consistent_views: int = 2
     """Geometric filter: a depth is kept when at least this many source views' depth maps agree with it."""
     consistency_pixels: float = 1.0
     """Geometric filter: reference -> source -> reference reprojection distance in pixels."""
-    consistency_depth: float = 0.01
+    consistency_depth: float = 0.02
     """Geometric filter: relative depth difference after the round trip."""
     match_sigma: float = 0.5
     """Pixels: assumed precision of a ZNCC match, turned into a depth standard deviation per pixel."""

@@ -58,13 +58,16 @@ def fundamental(r: np.ndarray, t: np.ndarray, k: np.ndarray, i: int, j: int) -> 
     return np.linalg.inv(k[j]).T @ e @ np.linalg.inv(k[i])
 
 
-def sampson_matrix(f: np.ndarray, pi: np.ndarray, pj: np.ndarray) -> np.ndarray:
-    """Sampson distances (pixels) between every point of view ``i`` and every point of view ``j``.
+def epipolar_mask(f: np.ndarray, pi: np.ndarray, pj: np.ndarray, max_distance: float) -> np.ndarray:
+    """Which pairs of points of views ``i`` and ``j`` are within ``max_distance`` pixels (Sampson distance)
+    of the epipolar geometry ``F``.
 
     The Sampson distance is the first-order approximation of the smallest total image displacement that
     makes a correspondence satisfy the epipolar constraint (Hartley & Zisserman, section 11.4.3)::
 
         d = |p_jᵀ F p_i| / sqrt((F p_i)_1² + (F p_i)_2² + (Fᵀ p_j)_1² + (Fᵀ p_j)_2²)
+
+    compared here as ``(p_jᵀ F p_i)² <= max_distance² (...)``, without roots or divisions.
 
     Parameters
     ----------
@@ -72,19 +75,25 @@ def sampson_matrix(f: np.ndarray, pi: np.ndarray, pj: np.ndarray) -> np.ndarray:
         ``[3, 3]`` fundamental matrix of ideal pixels.
     pi, pj : np.ndarray
         ``[Ni, 2]`` and ``[Nj, 2]`` ideal pixels.
+    max_distance : float
+        Pixels.
 
     Returns
     -------
     np.ndarray
-        ``float32 [Ni, Nj]``.
+        ``bool [Ni, Nj]``.
     """
     hi = np.column_stack([pi, np.ones(len(pi))])
     hj = np.column_stack([pj, np.ones(len(pj))])
     li = hi @ f.T  # [Ni, 3] epipolar lines F p_i in view j
     lj = hj @ f  # [Nj, 3] lines Fᵀ p_j in view i
-    num = (li.astype(np.float32) @ hj.T.astype(np.float32))  # p_jᵀ F p_i
-    den = (li[:, 0] ** 2 + li[:, 1] ** 2)[:, None] + (lj[:, 0] ** 2 + lj[:, 1] ** 2)[None, :]
-    return np.abs(num) / np.sqrt(den).astype(np.float32)
+    num = li.astype(np.float32) @ hj.T.astype(np.float32)  # p_jᵀ F p_i
+    t2 = np.float32(max_distance**2)
+    den_i = ((li[:, 0] ** 2 + li[:, 1] ** 2) * t2).astype(np.float32)[:, None]
+    den_j = ((lj[:, 0] ** 2 + lj[:, 1] ** 2) * t2).astype(np.float32)[None, :]
+    num *= num
+    num -= den_i
+    return num <= den_j
 
 
 def sampson_distance(f: np.ndarray, pi: np.ndarray, pj: np.ndarray) -> np.ndarray:

@@ -18,7 +18,7 @@ from __future__ import annotations
 import numpy as np
 
 from lift3d.sfm.config import MatchConfig
-from lift3d.sfm.geometry import sampson_distance, sampson_matrix
+from lift3d.sfm.geometry import epipolar_mask, sampson_distance
 
 _CHUNK = 2048  # rows of the distance matrix at a time (2048 x 4000 float32 = 33 MB)
 
@@ -94,26 +94,23 @@ def match_pair(di: np.ndarray, dj: np.ndarray, pi: np.ndarray, pj: np.ndarray, f
         b = min(a + _CHUNK, ni)
         dist = descriptor_distances(di[a:b], dj).astype(np.float32)
         if config.guided:
-            dist[sampson_matrix(f, pi[a:b], pj) > config.max_epipolar_error] = np.inf
+            dist[~epipolar_mask(f, pi[a:b], pj, config.max_epipolar_error)] = np.inf
         rows = np.arange(b - a)
-        if nj >= 2:
-            two = np.argpartition(dist, 1, axis=1)[:, :2]
-            d2 = dist[rows[:, None], two]
-            first = np.where(d2[:, 0] <= d2[:, 1], two[:, 0], two[:, 1])
-            best, second = d2.min(1), d2.max(1)
-        else:
-            first = np.zeros(b - a, np.int64)
-            best, second = dist[:, 0], np.full(b - a, np.inf, np.float32)
-        best_j[a:b] = first
-        ok_i[a:b] = np.isfinite(best) & _ratio_ok(best, second, config.ratio, hamming) & (best <= max_d)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            q = best / second if hamming else np.sqrt(best / second)
-        ratio[a:b] = np.where(np.isfinite(second) & (second > 0), q, 0.0)
+        first = dist.argmin(1)
+        best = dist[rows, first]
+        # Column-wise best (mutual check) before the row minima are masked for the second best.
         cb = dist.argmin(0)
         cv = dist[cb, np.arange(nj)]
         better = cv < col_best
         col_best[better] = cv[better]
         col_arg[better] = cb[better] + a
+        dist[rows, first] = np.inf
+        second = dist.min(1) if nj >= 2 else np.full(b - a, np.inf, np.float32)
+        best_j[a:b] = first
+        ok_i[a:b] = np.isfinite(best) & _ratio_ok(best, second, config.ratio, hamming) & (best <= max_d)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            q = best / second if hamming else np.sqrt(best / second)
+        ratio[a:b] = np.where(np.isfinite(second) & (second > 0), q, 0.0)
     idx_i = np.flatnonzero(ok_i)
     idx_j = best_j[idx_i]
     if config.mutual:
