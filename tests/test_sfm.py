@@ -11,7 +11,7 @@ import pytest
 from lift3d.cli.main import main as cli_main
 from lift3d.data.cameras import Cameras, look_at
 from lift3d.data.scene import Category, SceneWriter, Segment, load_scene
-from lift3d.data.stereo import DenseDepth, SparsePoints, write_mvs_depth, write_sparse_points
+from lift3d.data.stereo import DenseDepth, SparsePoints, read_sparse_points, write_mvs_depth, write_sparse_points
 from lift3d.errors import InputError
 from lift3d.sfm import SfmConfig, TrackConfig, plane_sweep_scene, triangulate_scene
 from lift3d.sfm.config import MatchConfig
@@ -204,6 +204,20 @@ def test_triangulate_scene_on_a_textured_plane_and_the_cli_round_trip(tmp_path, 
     meta = json.loads((tmp_path / "plane" / "transforms.json").read_text())
     assert meta["sparse_points"]["source"] == "lift3d triangulate"
     assert meta["frames"][0]["mvs_depth_file_path"] == "mvs/depth/f0.png"
+
+
+def test_orb_features_and_a_detached_output_folder(tmp_path, capsys):
+    textured_plane_scene(tmp_path / "plane")
+    before = (tmp_path / "plane" / "transforms.json").read_text()
+    rc = cli_main(["triangulate", "--data", str(tmp_path / "plane"), "--out", str(tmp_path / "elsewhere"),
+                   "--features.detector", "orb", "--quiet"])
+    assert rc == 0
+    assert (tmp_path / "plane" / "transforms.json").read_text() == before  # the scene is left alone
+    record = json.loads((tmp_path / "elsewhere" / "triangulation.json").read_text())
+    entry = record["sparse_points"]
+    assert entry["count"] > 20 and entry["settings"] == {"features": {"detector": "orb"}}
+    sp = read_sparse_points(tmp_path / "elsewhere" / entry["points"], tmp_path / "elsewhere" / entry["observations"])
+    assert len(sp) == entry["count"] and np.median(sp.error) < 1.0
 
 
 def test_degenerate_baseline_is_a_warning_not_a_crash(tmp_path, capsys):
