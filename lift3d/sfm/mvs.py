@@ -134,7 +134,6 @@ def _sweep_direction(ref, var_r, mu_r, sources, k_ref, k_src, rel, normal, qs, n
     cost = np.empty((len(qs), h, w), np.float32)
     best_zncc = np.full((h, w), -np.inf, np.float32)
     best_src = np.zeros((n_src, h, w), np.float32)
-    srcs = [np.dstack([src, np.ones_like(src)]) for src in sources]  # 2nd channel: coverage after warping
     # H(q) = A + q B (plane_homography is linear in q): two matrices per source instead of one per plane.
     hom_a = [plane_homography(k_ref, ks, r_rel, t_rel, normal, 0.0) for ks, (r_rel, t_rel) in zip(k_src, rel)]
     hom_b = [plane_homography(k_ref, ks, r_rel, t_rel, normal, 1.0) - a
@@ -146,19 +145,20 @@ def _sweep_direction(ref, var_r, mu_r, sources, k_ref, k_src, rel, normal, qs, n
         in_range = (z_plane > lo) & (z_plane < hi)
         zs = np.empty((n_src, h, w), np.float32)
         top = np.full((k_best, h, w), -1.0, np.float32)  # the k best ZNCCs so far, sorted high to low
-        for s, src in enumerate(srcs):
+        for s, src in enumerate(sources):
             hom = hom_a[s] + q * hom_b[s]
-            # Border 0, never NaN: OpenCV's box filter keeps running sums, so a NaN would spread along the
-            # whole row. Pixels whose source position falls outside are masked by the coverage channel.
-            warped = cv2.warpPerspective(src, hom, (w, h), flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP,
-                                         borderMode=cv2.BORDER_CONSTANT, borderValue=0)
-            img, cover = warped[..., 0], warped[..., 1]
+            # Outside the source reads -1e4 (a pixel that interpolates with it goes negative), is marked and
+            # zeroed; never NaN: OpenCV's box filter keeps running sums, so a NaN would spread along the row.
+            img = cv2.warpPerspective(src, hom, (w, h), flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP,
+                                      borderMode=cv2.BORDER_CONSTANT, borderValue=-1e4)
+            inside = img >= 0
+            np.maximum(img, 0.0, out=img)
             stats = _box(np.dstack([img, img * img, img * ref]), win)
             mu_s = stats[..., 0]
             var_s = stats[..., 1] - mu_s * mu_s
             cov = stats[..., 2] - mu_s * mu_r
             z = cov / np.sqrt(np.maximum(var_s * var_r, 1e-12))
-            z = np.where((cover > 0.99) & (var_s >= min_var), np.clip(z, -1, 1), np.float32(-1.0))
+            z = np.where(inside & (var_s >= min_var), np.clip(z, -1, 1), np.float32(-1.0))
             zs[s] = z
             for j in range(k_best):  # insertion into the sorted top-k (cheaper than a partition per plane)
                 hi_j = np.maximum(top[j], z)
