@@ -3,17 +3,14 @@
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import sys
 import time
-import typing
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from lift3d.sfm.config import SfmConfig
-from lift3d.train.config import field_docs, update_dataclass
+HELP = "sparse points (and --dense depth maps) from a scene's images and poses"
 
 DESCRIPTION = """\
 Triangulate sparse 3D points from the images of a scene folder with its known poses (SIFT features, matches
@@ -39,7 +36,12 @@ SECTIONS = ("features", "pairs", "matching", "tracks", "dense")
 
 def add_parser(subparsers, verb: str) -> argparse.ArgumentParser:
     """Register ``lift3d triangulate``."""
-    p = subparsers.add_parser(verb, help="sparse points (and --dense depth maps) from a scene's images and poses",
+    # The flags come from the configuration dataclasses (lift3d.sfm loads OpenCV and scipy, the flags
+    # machinery torch): here, not at module level, so that `lift3d --help` stays cheap (see lift3d.cli.main).
+    from lift3d.model.config import add_config_flags
+    from lift3d.sfm.config import SfmConfig
+
+    p = subparsers.add_parser(verb, help=HELP,
                               description=DESCRIPTION, formatter_class=argparse.RawDescriptionHelpFormatter,
                               usage="lift3d triangulate --data DIR [--dense] [--split NAME] [--out DIR] [settings]")
     p.add_argument("--data", required=True, type=Path, metavar="DIR", help="scene folder (docs/scene-format.md)")
@@ -50,42 +52,27 @@ def add_parser(subparsers, verb: str) -> argparse.ArgumentParser:
                    help="write the files into DIR (same layout) instead of the scene folder, and leave "
                         "transforms.json untouched")
     p.add_argument("--quiet", action="store_true", help="no progress bars")
-    add_sfm_flags(p)
+    # One --<section>.<field-name> flag per SfmConfig setting, by the run configuration's flags machinery.
+    add_config_flags(p, SfmConfig(), SECTIONS)
     p.set_defaults(func=run)
     return p
 
 
-def add_sfm_flags(parser: argparse.ArgumentParser) -> None:
-    """One ``--<section>.<field-name>`` flag per :class:`SfmConfig` setting (dest ``sfm:<section>.<field>``)."""
-    defaults = SfmConfig()
-    for section in SECTIONS:
-        sub = getattr(defaults, section)
-        docs = field_docs(type(sub))
-        hints = typing.get_type_hints(type(sub))
-        group = parser.add_argument_group(f"{section} settings", (type(sub).__doc__ or "").strip().split("\n")[0])
-        for f in dataclasses.fields(sub):
-            tp = hints[f.name]
-            kwargs: dict[str, Any] = dict(
-                dest=f"sfm:{section}.{f.name}", default=argparse.SUPPRESS,
-                help=f"{docs.get(f.name, '')} (default: {getattr(sub, f.name)!r})".replace("%", "%%"))
-            kwargs["metavar"] = "{true,false}" if tp is bool else tp.__name__.upper()
-            group.add_argument(f"--{section}.{f.name.replace('_', '-')}", **kwargs)
+def config_from_args(args: argparse.Namespace):
+    """The :class:`~lift3d.sfm.config.SfmConfig` the flags describe (checked), and the overrides as a nested
+    dict (recorded with the result)."""
+    # here, not at module level: keeps `lift3d --help` cheap (torch, OpenCV)
+    from lift3d.model.config import overrides_from_args, update_dataclass
+    from lift3d.sfm.config import SfmConfig
 
-
-def config_from_args(args: argparse.Namespace) -> tuple[SfmConfig, dict]:
-    """The configuration the flags describe, and the overrides as a nested dict (recorded with the result)."""
-    overrides: dict[str, dict] = {}
-    for key, val in vars(args).items():
-        if key.startswith("sfm:"):
-            section, name = key[4:].split(".", 1)
-            overrides.setdefault(section, {})[name] = val
+    overrides = overrides_from_args(args)
     cfg = update_dataclass(SfmConfig(), overrides, "command line") if overrides else SfmConfig()
     return cfg.check(), overrides
 
 
 def run(args: argparse.Namespace) -> int:
     """Run the pipeline, write the results, print the summary."""
-    # Imported here so that `lift3d --help` does not load OpenCV's feature code and scipy's graph routines.
+    # here, not at module level: keeps `lift3d --help` cheap (OpenCV features, scipy graph routines)
     from lift3d.data.scene import load_scene
     from lift3d.data.stereo import write_mvs_depth, write_sparse_points
     from lift3d.sfm import plane_sweep_scene, triangulate_scene
@@ -122,8 +109,9 @@ def run(args: argparse.Namespace) -> int:
 
 def _write_detached(out: Path, sparse, dense, unit_scale: float) -> None:
     """The same files in another folder, with a small JSON standing in for transforms.json's entries."""
+    # here, not at module level: keeps `lift3d --help` cheap (as in run)
     from lift3d.data.stereo import write_mvs_maps, write_sparse_points_files
-    from lift3d.utils.atomic import write_json_atomic  # (cheap `lift3d --help`, as in run)
+    from lift3d.utils.atomic import write_json_atomic
 
     entry = write_sparse_points_files(out, sparse)
     record: dict[str, Any] = {"sparse_points": entry}

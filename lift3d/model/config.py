@@ -26,7 +26,7 @@ import typing
 from dataclasses import dataclass
 from dataclasses import field as dc_field
 from pathlib import Path
-from typing import Any
+from typing import Any, Sequence
 
 import yaml
 
@@ -275,11 +275,14 @@ def field_docs(cls: type) -> dict[str, str]:
     return docs
 
 
-def add_config_flags(parser: argparse.ArgumentParser) -> None:
+def add_config_flags(parser: argparse.ArgumentParser, root: Any = None, sections: Sequence[str] = SECTIONS) -> None:
     """One flag per leaf setting: ``--<section>.<field-name>``, and ``--<section>.<sub>.<field-name>`` in a
-    nested section such as ``field.grid`` (dest ``cfg:<dotted path>``); one argument group per section."""
-    defaults = Config()
-    for section in SECTIONS:
+    nested section such as ``field.grid`` (dest ``cfg:<dotted path>``); one argument group per section.
+
+    ``root`` is the configuration tree whose ``sections`` become flags (default: the run configuration;
+    ``lift3d triangulate`` passes its :class:`~lift3d.sfm.config.SfmConfig`)."""
+    defaults = Config() if root is None else root
+    for section in sections:
         _add_section_flags(parser, section, getattr(defaults, section))
 
 
