@@ -1,7 +1,7 @@
 """Measure lift3d's geometry from images (sparse triangulation, dense plane sweep) against exact depth.
 
 Developer script behind the tables of docs/sfm.md. For each scene folder (made by ``lift3d synth``, which
-ships exact depth maps and ``gt/points.ply``), it runs the pipeline on the ``train`` frames and reports:
+ships exact depth maps — ``gt_depth_file_path`` — and ``gt/points.ply``), it runs the pipeline on the ``train`` frames and reports:
 
 * sparse: points, observations, track length, reprojection error; the fraction of points within 1 cm,
   3 cm and 1 % of the scene diagonal of the true surface (point-to-plane distance to the GT point cloud,
@@ -85,6 +85,13 @@ class Surface:
         return np.where(d[:, 0] <= 2 * self.spacing, plane, d[:, 0])
 
 
+def true_depth(scene: Scene, i: int) -> np.ndarray:
+    """The exact depth of frame ``i``: ``gt_depth_file_path`` when the scene has it (``lift3d synth`` writes
+    sensor-like depth as ``depth_file_path`` by default), else ``depth_file_path``."""
+    d = scene.gt_depth(i)
+    return scene.depth(i) if d is None else d
+
+
 def class_groups(scene: Scene) -> dict[str, set[int]]:
     names = {c.name: c.id for c in scene.categories}
     if all(n in names for n in ("wall", "floor", "ceiling")):
@@ -119,7 +126,7 @@ def sparse_metrics(scene: Scene, sp, surface: Surface, diag: float) -> dict:
         covered.append(len(obs["uv"]) / (h * w))
         if len(obs["uv"]) == 0:
             continue
-        z, ok = bilinear(scene.depth(fi), obs["uv"])
+        z, ok = bilinear(true_depth(scene, fi), obs["uv"])
         dz.append(obs["depth"] - z)
         ok_all.append(ok)
         sig.append(obs["sigma"])
@@ -162,7 +169,7 @@ def dense_metrics(scene: Scene, dense, diag: float) -> dict:
     for k, name in enumerate(dense.frame_names):
         fi = names.index(name)
         d, s = dense.depth[k], dense.sigma[k]
-        gt = scene.depth(fi)
+        gt = true_depth(scene, fi)
         sem = scene.gt_labels(fi).semantic
         valid = d > 0
         scored = valid & (gt > 0)
