@@ -24,6 +24,7 @@ def _pose_noise(text: str) -> float:
 
 def add_parser(subparsers, verb: str) -> argparse.ArgumentParser:
     """Register ``lift3d synth`` on the CLI's subparsers."""
+    # here, not at module level: keeps `lift3d --help` cheap
     from lift3d.synth.make import CAMERA_PATHS, KINDS
     from lift3d.synth.noise import PRESETS
     from lift3d.synth.sensors import DEPTH_MODES

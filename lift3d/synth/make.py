@@ -511,6 +511,7 @@ def make_scene(
 
 def _pseudo_label_metrics(arrays: list[tuple[np.ndarray, ...]], content: SceneContent) -> dict:
     """mIoU and PQ^scene of the pseudo-labels on the test views, as ``lift3d eval`` scores its baseline."""
+    # here, not at module level: lift3d.eval loads torch; keeps `import lift3d.synth` cheap
     from lift3d.eval import compute_2d_metrics
 
     if not arrays:
