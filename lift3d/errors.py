@@ -14,8 +14,10 @@ class Lift3DError(Exception):
     """Base class of the errors the CLI reports as one line with exit code 2."""
 
 
-class InputError(Lift3DError):
+class InputError(Lift3DError, ValueError):
     """Bad input: a missing, unreadable or malformed file, or an invalid option.
+
+    A :class:`ValueError` too, so a caller's ``except ValueError`` catches it as it would any bad value.
 
     Parameters
     ----------
@@ -28,6 +30,8 @@ class InputError(Lift3DError):
     --------
     >>> str(InputError("scene/transforms.json", "frames[3].transform_matrix is not finite"))
     'scene/transforms.json: frames[3].transform_matrix is not finite'
+    >>> isinstance(InputError("--steps", "must be positive"), ValueError)
+    True
     """
 
     def __init__(self, where: str | Path, problem: str):

@@ -24,15 +24,17 @@ from lift3d.data.cameras import look_at
 from lift3d.data.ply import read_labelled_ply
 from lift3d.data.scene import Category, SceneWriter, Segment, load_scene
 from lift3d.errors import InputError
-from lift3d.export import check_writable, export_run
-from lift3d.export.writers.pcd import read_pcd, write_pcd
-from lift3d.export.writers.semantickitti import read_semantickitti_label
-from lift3d.export.instances import _tiny_model, assign_instances, voxel_downsample_majority
+from lift3d.export import export_run
+from lift3d.export.instances import assign_instances, voxel_downsample_majority
 from lift3d.export.mesh import choose_density_threshold, extract_labelled_mesh
 from lift3d.export.pointcloud import OrientedBox, extract_labelled_points
+from lift3d.export.writers.pcd import read_pcd, write_pcd
+from lift3d.export.writers.semantickitti import read_semantickitti_label
 from lift3d.model.normalization import SceneNormalization
+from lift3d.model.panoptic import _tiny_model
 from lift3d.model.run import LoadedRun
 from lift3d.model.run_folder import RunFolder
+from lift3d.utils.files import check_writable
 
 # ------------------------------------------------------------------------------------------ analytic field
 # Normalised coordinates. Shell A (a hollow ball) hides a solid ball C inside it; ball B stands apart; a
@@ -556,8 +558,8 @@ def test_readonly_output_dir_is_an_input_error_naming_it(tmp_path, monkeypatch):
     target.mkdir()
     with _read_only(target, monkeypatch):
         with pytest.raises(InputError) as err:
-            check_writable(target)
-    assert str(target) in str(err.value)
+            check_writable(target, folder=True)
+    assert str(target) in str(err.value) and "not writable" in str(err.value)
 
 
 @contextlib.contextmanager

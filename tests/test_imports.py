@@ -92,3 +92,25 @@ def test_the_check_finds_what_it_looks_for(tmp_path):
                      "def f():\n    from lift3d.model.run import load_run  # keeps `import lift3d` cheap\n")
     found = [(name, local) for _, name, local in _imports(tree)]
     assert found == [("lift3d.train.trainer", False), ("lift3d.train", False), ("lift3d.model.run", True)]
+
+
+def test_every_package_folder_is_a_package():
+    """setuptools' find_packages skips folders without __init__.py: an installed lift3d would miss them."""
+    missing = [str(d.relative_to(PACKAGE.parent)) for d in PACKAGE.rglob("*")
+               if d.is_dir() and d.name != "__pycache__" and any(d.glob("*.py")) and not (d / "__init__.py").is_file()]
+    assert not missing, missing
+
+
+@pytest.mark.parametrize("code", [
+    "import lift3d",
+    "import lift3d.export",
+    "import lift3d.cli.main as m; m.build_parser(None, lazy=True)",  # what `lift3d --help` builds
+])
+def test_cheap_imports_stay_free_of_torch(code):
+    import subprocess
+    import sys
+
+    check = f"{code}\nimport sys\nassert 'torch' not in sys.modules, 'torch was imported'"
+    proc = subprocess.run([sys.executable, "-c", check], capture_output=True, text=True, timeout=120,
+                          cwd=PACKAGE.parent)
+    assert proc.returncode == 0, proc.stderr[-2000:]

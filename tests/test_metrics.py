@@ -13,7 +13,7 @@ import pytest
 from lift3d.eval import confusion_matrix, depth_error, miou, pq_scene, psnr
 from lift3d.eval.metrics import benchmark_pq_scene, psnr_per_image
 
-FIXTURES = Path("/work/shared/fixtures/pq_scene_cases")
+FIXTURES = Path(__file__).resolve().parent / "fixtures" / "pq_scene_cases"  # see fixtures/README.md
 CASES = sorted(FIXTURES.glob("case_*.npz"))
 F32 = 1e-6  # the reference computes per-segment IoU in float32
 
@@ -51,7 +51,7 @@ def test_fixture_agrees_with_panoptic_lifting(case, min_area):
 
 
 def naive_pq(ps, pi, gs, gi, things, stuff, min_area=0.005, void=0):
-    """The rules of DESIGN.md section 4, written pixel by pixel (slow, obviously correct)."""
+    """The rules of docs/metrics.md, written pixel by pixel (slow, obviously correct)."""
     P, G = [], []
     for a, b, c, d in zip(ps.ravel().tolist(), pi.ravel().tolist(), gs.ravel().tolist(), gi.ravel().tolist()):
         if c != void:

@@ -20,7 +20,8 @@ from lift3d.data.ply import write_labelled_ply
 from lift3d.errors import InputError
 from lift3d.viz import bench as vbench
 from lift3d.viz import palette, points, run as vrun
-from lift3d.viz.palette import INSTANCE_NONE, ClassInfo, instance_color, panoptic_color, semantic_color
+from lift3d.data.categories import Category, as_class_table, read_class_table
+from lift3d.viz.palette import INSTANCE_NONE, instance_color, panoptic_color, semantic_color
 
 CLASSES = [
     {"id": 1, "name": "floor", "isthing": 0, "color": [152, 223, 138]},
@@ -109,7 +110,7 @@ def test_instance_colors_depend_on_the_id_only_and_match_render_previews():
 
 
 def test_semantic_and_panoptic_colors_follow_the_class_table():
-    table = palette.as_classes(CLASSES)
+    table = as_class_table(CLASSES)
     assert semantic_color([3, 1, 0], table).tolist() == [[188, 189, 34], [152, 223, 138], list(palette.VOID_COLOR)]
     unknown = semantic_color([42], table)[0]
     assert (unknown == semantic_color([42], [])[0]).all() and not (unknown == instance_color(42)[0]).all()
@@ -126,15 +127,15 @@ def test_semantic_and_panoptic_colors_follow_the_class_table():
 
 def test_class_tables_are_read_and_checked(tmp_path):
     (tmp_path / "classes.json").write_text(json.dumps(CLASSES))
-    assert palette.load_classes(tmp_path / "classes.json")[1] == ClassInfo(3, "chair", True, (188, 189, 34))
+    assert read_class_table(tmp_path / "classes.json")[1] == Category(3, "chair", True, (188, 189, 34))
     (tmp_path / "t.json").write_text(json.dumps({"categories": CLASSES}))  # a transforms.json-like table
-    assert len(palette.load_classes(tmp_path / "t.json")) == 3
+    assert len(read_class_table(tmp_path / "t.json")) == 3
     (tmp_path / "bad.json").write_text(json.dumps([{"id": 1, "color": [300, 0, 0]}]))
     with pytest.raises(InputError, match="color"):
-        palette.load_classes(tmp_path / "bad.json")
+        read_class_table(tmp_path / "bad.json")
     (tmp_path / "junk.json").write_text("{nope")
     with pytest.raises(InputError, match="JSON"):
-        palette.load_classes(tmp_path / "junk.json")
+        read_class_table(tmp_path / "junk.json")
 
 
 # ------------------------------------------------------------------------------------------ 3D pictures
@@ -148,7 +149,7 @@ def test_rendered_pixels_carry_the_palette_colours_at_projected_centres():
         assert class_view.camera is inst_view.camera  # linked: both views always show the same angle
         for center, inst_id, cls in ((CENTER_A, ID_A, 3), (CENTER_B, ID_B, 4)):
             want_inst = instance_color(inst_id)[0]
-            want_cls = semantic_color(cls, palette.as_classes(CLASSES))[0]
+            want_cls = semantic_color(cls, as_class_table(CLASSES))[0]
             rc = _pixel(img, inst_view, center)
             assert rc[1] < 480 * 0.42, "the instance view is the left panel"
             assert (_patch(img, rc) == want_inst).all(axis=1).mean() > 0.8, (rc, _patch(img, rc)[:3])

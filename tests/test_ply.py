@@ -1,4 +1,4 @@
-"""Labelled PLY (DESIGN.md section 3): round trips through our reader, Open3D's tensor API and PyVista."""
+"""Labelled PLY (docs/export.md): round trips through our reader, Open3D's tensor API and PyVista."""
 
 from __future__ import annotations
 

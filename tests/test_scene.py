@@ -1,4 +1,4 @@
-"""The scene folder contract (DESIGN.md section 1): SceneWriter → load_scene round trips, the default
+"""The scene folder contract (docs/scene-format.md): SceneWriter → load_scene round trips, the default
 split rule, and one test per validation error, each checking that the message names the file and field."""
 
 from __future__ import annotations

@@ -384,7 +384,7 @@ def benchmarks_markdown(results: dict, pictures: dict[str, str]) -> str:
         "instance. *Inputs*: `RGB + depth` when the scene's depth maps supervise training (what every preset does "
         "with a scene that has them, as the synthetic scenes do); `RGB` is the paper's setting (`--losses.depth 0`). "
         "3D metrics score the exported point cloud against `gt/points.ply` at τ = 1 % of its diagonal; GT points "
-        "with no exported point within τ count as void predictions (DESIGN.md section 4). 3D mIoU uses the 2D "
+        "with no exported point within τ count as void predictions (docs/metrics.md). 3D mIoU uses the 2D "
         "rules: `min_area` 0.005, then strict in brackets, where any void prediction puts a void class with "
         "IoU 0 into the mean.",
         "",
@@ -524,7 +524,7 @@ def export_markdown(ex: dict) -> list[str]:
         f"({ex['threads']} thread{'s' if ex['threads'] != 1 else ''}): extraction (isosurface, its refinement "
         "onto the rendered surface, visibility, labels from the heads, instances) plus writing `points.ply`. "
         "Loading the checkpoint and importing Open3D/PyVista are not included. Targets for 1M points: 5 s "
-        "(PERFORMANCE.md), and at most 30 s and 3 GiB peak memory.",
+        "(the design target), and at most 30 s and 3 GiB peak memory.",
         "",
         "| points | seconds | extract s | write s | peak MB | load s |",
         "|---|---|---|---|---|---|",

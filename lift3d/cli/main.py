@@ -19,7 +19,7 @@ import sys
 from lift3d import __version__
 from lift3d.errors import Lift3DError
 
-# Verb → module under lift3d.cli, in the order of DESIGN.md section 2. A verb is listed only once it works.
+# Verb → module under lift3d.cli, in the order of the pipeline (docs/cli.md). A verb is listed only once it works.
 VERBS = {
     "demo": "demo",
     "synth": "synth",

@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 
 DESCRIPTION = """\
-Write a synthetic scene folder (DESIGN.md section 1): posed images, GT panoptic maps, exact depth and 3D
+Write a synthetic scene folder (docs/scene-format.md): posed images, GT panoptic maps, exact depth and 3D
 points, the 2D panoptic pseudo-labels of a simulated noisy segmenter (per-frame ids, missed/merged/split
 instances, class confusion, boundary errors, abstention, spurious segments, view-correlated confusions,
 scores), sensor depth and optionally noisy poses; see docs/synth.md.

@@ -1,4 +1,4 @@
-"""``lift3d convert``: other capture layouts into the scene folder of DESIGN.md section 1.
+"""``lift3d convert``: other capture layouts into the scene folder of docs/scene-format.md.
 
 Every source reader (:mod:`~lift3d.convert.colmap`, :mod:`~lift3d.convert.panoptic_lifting`,
 :mod:`~lift3d.convert.scannet`) only *describes* its frames as :class:`FrameInput` records: where the image

@@ -32,7 +32,6 @@ annotations; pass ``--no-gt`` for those.
 from __future__ import annotations
 
 import io
-import json
 import pickle
 from pathlib import Path
 from typing import Any, Callable
@@ -57,6 +56,7 @@ from lift3d.convert.scannet import half_pixel, intrinsics_file, list_frames, pos
 from lift3d.data.images import read_label_map
 from lift3d.data.scene import Category, Scene
 from lift3d.errors import InputError
+from lift3d.utils.files import read_json
 from lift3d.utils.progress import progress_bar
 
 # What segmentation_data.pkl may contain: builtin containers/scalars and numpy arrays (the GT boxes).
@@ -102,10 +102,7 @@ def read_segmentation_data(path: Path) -> dict:
 
 def read_splits(path: Path, stems: list[str]) -> dict[str, list[str]]:
     """``splits.json`` lists of frame stems (Panoptic Lifting writes them as strings or numbers)."""
-    try:
-        raw = json.loads(path.read_text(encoding="utf-8"))
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise InputError(path, f"not readable JSON ({exc})") from exc
+    raw = read_json(path)
     if not isinstance(raw, dict) or not isinstance(raw.get("train"), list):
         raise InputError(path, "expected {\"train\": [...], \"test\": [...]}")
     known = set(stems)

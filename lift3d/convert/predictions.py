@@ -20,7 +20,6 @@ names ``semantics/`` and ``instances/`` are accepted too.
 
 from __future__ import annotations
 
-import json
 import os
 from pathlib import Path
 from typing import Any, Iterable, Sequence
@@ -29,10 +28,12 @@ import cv2
 import numpy as np
 
 from lift3d.convert import PanopticFrame, distinct_color, generic_categories
+from lift3d.data.categories import Category
+from lift3d.data.categories import parse_categories as parse_scene_categories
 from lift3d.data.images import read_label_map, read_panoptic_png
-from lift3d.data.scene import Category, Segment
-from lift3d.data.scene import parse_categories as parse_scene_categories
+from lift3d.data.scene import Segment
 from lift3d.errors import InputError
+from lift3d.utils.files import read_json
 from lift3d.utils.progress import progress_bar
 
 # Thing instance ids (scene-consistent GT) are offset past every category id so they never collide with
@@ -50,7 +51,7 @@ def load_categories(path: str | Path) -> list[Category]:
         Missing file, bad JSON, or a category without an integer ``id`` ≥ 1 (ids must be unique).
     """
     path = Path(path)
-    raw = _read_json(path)
+    raw = read_json(path)
     if isinstance(raw, dict):
         raw = raw.get("categories")
     return parse_categories(raw, path)
@@ -204,14 +205,14 @@ class PredictionFolder:
             return p
         # panopticapi names the JSON after the split (panoptic_val2017.json) with a folder of the same stem.
         for cand in sorted(self.root.glob("*.json")):
-            raw = _read_json(cand)
+            raw = read_json(cand)
             if isinstance(raw, dict) and isinstance(raw.get("annotations"), list):
                 return cand
         return None
 
     def _load_coco(self, path: Path, use_categories: bool) -> None:
         self.json_path = path
-        raw = _read_json(path)
+        raw = read_json(path)
         if not isinstance(raw, dict) or not isinstance(raw.get("annotations"), list):
             raise InputError(path, "annotations: missing (expected COCO panoptic JSON)")
         if use_categories and raw.get("categories"):
@@ -340,15 +341,3 @@ def read_unit_image(path: Path) -> np.ndarray:
 
 def _first_dir(root: Path, names: Sequence[str]) -> Path | None:
     return next((root / n for n in names if (root / n).is_dir()), None)
-
-
-def _read_json(path: Path) -> Any:
-    if not path.is_file():
-        raise InputError(path, "file not found")
-    try:
-        with open(path, encoding="utf-8") as fh:
-            return json.load(fh)
-    except json.JSONDecodeError as exc:
-        raise InputError(path, f"not valid JSON (line {exc.lineno}: {exc.msg})") from exc
-    except (OSError, UnicodeDecodeError) as exc:
-        raise InputError(path, f"cannot be read ({exc})") from exc

@@ -2,7 +2,7 @@
 
 Open3D drops custom vertex attributes of meshes on write, and its legacy point-cloud writer knows only
 xyz/rgb/normals, so lift3d writes its labelled geometry itself: float32 ``x y z``, uchar ``red green blue``,
-int32 ``semantic`` and ``instance``, float32 ``confidence`` (DESIGN.md section 3), binary little-endian.
+int32 ``semantic`` and ``instance``, float32 ``confidence`` (docs/export.md), binary little-endian.
 These files open in Open3D's tensor API (``o3d.t.io.read_point_cloud`` keeps the int32 attributes as
 ``[N, 1]`` tensors named ``semantic``/``instance``/``confidence``, beside ``positions``/``colors``/``normals``),
 plyfile, PyVista and CloudCompare. PyVista (VTK's PLY reader) keeps only geometry, faces and colours

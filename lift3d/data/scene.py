@@ -1,4 +1,4 @@
-"""The scene folder (DESIGN.md section 1): reading, validating and writing it.
+"""The scene folder (docs/scene-format.md): reading, validating and writing it.
 
 A scene folder holds posed images plus per-frame 2D panoptic pseudo-labels (and optionally ground truth)::
 
@@ -28,7 +28,6 @@ runs them all.
 
 from __future__ import annotations
 
-import json
 import math
 import os
 from dataclasses import dataclass, field
@@ -38,6 +37,7 @@ from typing import Any, Iterable
 import numpy as np
 
 from lift3d.data.cameras import CAMERA_MODELS, Cameras, is_rigid
+from lift3d.data.categories import Category, parse_categories
 from lift3d.data.images import (
     read_depth,
     read_label_map,
@@ -53,23 +53,10 @@ from lift3d.data.ply import read_labelled_ply, write_labelled_ply
 from lift3d.data.stereo import SparsePoints, read_sparse_points
 from lift3d.errors import InputError
 from lift3d.utils.atomic import write_json_atomic
+from lift3d.utils.files import read_json
 from lift3d.utils.progress import progress_bar
 
 SPLITS = ("train", "val", "test")
-
-
-@dataclass(frozen=True)
-class Category:
-    """A COCO panoptic category. ``id`` ≥ 1 (0 is void); ``isthing`` separates countable objects (things)
-    from amorphous regions (stuff)."""
-
-    id: int
-    name: str
-    isthing: bool
-    color: tuple[int, int, int] = (128, 128, 128)
-
-    def to_json(self) -> dict:
-        return {"id": self.id, "name": self.name, "isthing": int(self.isthing), "color": list(self.color)}
 
 
 @dataclass(frozen=True)
@@ -347,18 +334,6 @@ class Scene:
 
 
 # --------------------------------------------------------------------------------------------- reading
-def _read_json(path: Path) -> Any:
-    if not path.is_file():
-        raise InputError(path, "file not found")
-    try:
-        with open(path, encoding="utf-8") as fh:
-            return json.load(fh)
-    except json.JSONDecodeError as exc:
-        raise InputError(path, f"not valid JSON (line {exc.lineno}: {exc.msg})") from exc
-    except (OSError, UnicodeDecodeError) as exc:
-        raise InputError(path, f"cannot be read ({exc})") from exc
-
-
 def _read_confidence(path: Path) -> np.ndarray:
     if path.suffix == ".npy":
         try:
@@ -383,56 +358,6 @@ def _number(meta: dict, key: str, where: Path, field_name: str, default: Any = N
     if not math.isfinite(out):
         raise InputError(where, f"{field_name}: not finite")
     return out
-
-
-def parse_categories(raw: Any, where: Path, default_color=None) -> list[Category]:
-    """Validated categories from parsed JSON: a non-empty list of ``{id, name, isthing[, color]}``.
-
-    Parameters
-    ----------
-    raw : Any
-        The parsed ``categories`` value.
-    where : Path
-        The file it came from (named in every error).
-    default_color : callable, optional
-        ``(index, id) -> (r, g, b)`` for a category without ``color``; default a colour seeded by the id.
-
-    Raises
-    ------
-    InputError
-        Not a non-empty list, an entry without an integer ``id`` ≥ 1, a duplicate id, or a bad colour.
-    """
-    if not isinstance(raw, list) or not raw:
-        raise InputError(where, "categories: must be a non-empty list of {id, name, isthing[, color]}")
-    out: list[Category] = []
-    seen: set[int] = set()
-    for k, c in enumerate(raw):
-        if not isinstance(c, dict) or "id" not in c:
-            raise InputError(where, f"categories[{k}]: needs an 'id'")
-        try:
-            cid = int(c["id"])
-        except (TypeError, ValueError):
-            raise InputError(where, f"categories[{k}].id: not an integer ({c['id']!r})") from None
-        if cid < 1:
-            raise InputError(where, f"categories[{k}].id: must be >= 1 (0 is void)")
-        if cid in seen:
-            raise InputError(where, f"categories[{k}].id: duplicate id {cid}")
-        seen.add(cid)
-        color = c.get("color")
-        try:
-            rgb = tuple(int(x) for x in color[:3]) if color else None
-        except (TypeError, ValueError):
-            raise InputError(where, f"categories[{k}].color: expected [r, g, b]") from None
-        if rgb is None:
-            rgb = default_color(k, cid) if default_color is not None else default_category_color(cid)
-        out.append(Category(cid, str(c.get("name", f"class_{cid}")), bool(c.get("isthing", 0)), rgb))
-    return out
-
-
-def default_category_color(cid: int) -> tuple[int, int, int]:
-    """The colour of a category that names none (the same for an id everywhere in lift3d)."""
-    rng = np.random.default_rng(cid * 7919)
-    return tuple(int(x) for x in rng.integers(40, 256, 3))
 
 
 def _segments_by_file(coco: Any, where: Path, categories: dict[int, Category]) -> dict[str, dict[int, Segment]]:
@@ -499,6 +424,27 @@ def _intrinsics(meta: dict, frame: dict, where: Path, k: int) -> tuple[float, ..
     return fx, fy, cx, cy, w, h, *dist
 
 
+def read_transforms(root: str | Path) -> tuple[Path, dict]:
+    """The path and content of a scene folder's ``transforms.json``: an object with a non-empty ``frames``
+    list (what every reader of a scene folder needs before anything else).
+
+    Raises
+    ------
+    InputError
+        The folder or the file is missing, the file is not JSON, or it has no frames.
+    """
+    root = Path(root)
+    if not root.is_dir():
+        raise InputError(root, "scene folder not found")
+    tpath = root / "transforms.json"
+    meta = read_json(tpath)
+    if not isinstance(meta, dict):
+        raise InputError(tpath, "must hold a JSON object")
+    if not isinstance(meta.get("frames"), list) or not meta["frames"]:
+        raise InputError(tpath, "frames: missing or empty")
+    return tpath, meta
+
+
 def load_scene(root: str | Path) -> Scene:
     """Read and check a scene folder.
 
@@ -524,15 +470,8 @@ def load_scene(root: str | Path) -> Scene:
     ((128, 128, 3), 52)
     """
     root = Path(root)
-    if not root.is_dir():
-        raise InputError(root, "scene folder not found")
-    tpath = root / "transforms.json"
-    meta = _read_json(tpath)
-    if not isinstance(meta, dict):
-        raise InputError(tpath, "must hold a JSON object")
-    frames_raw = meta.get("frames")
-    if not isinstance(frames_raw, list) or not frames_raw:
-        raise InputError(tpath, "frames: missing or empty")
+    tpath, meta = read_transforms(root)
+    frames_raw = meta["frames"]
 
     camera_model = str(meta.get("camera_model", "PINHOLE"))
     if camera_model not in CAMERA_MODELS:
@@ -540,7 +479,7 @@ def load_scene(root: str | Path) -> Scene:
 
     # Categories: transforms.json first, else the COCO panoptic JSON's own list.
     pan_json_path = root / str(meta.get("panoptic_json", "panoptic.json"))
-    pan_json = _read_json(pan_json_path) if pan_json_path.is_file() else None
+    pan_json = read_json(pan_json_path) if pan_json_path.is_file() else None
     if "categories" in meta:
         categories = parse_categories(meta["categories"], tpath)
     elif isinstance(pan_json, dict) and "categories" in pan_json:
@@ -551,7 +490,7 @@ def load_scene(root: str | Path) -> Scene:
     segs_by_file = _segments_by_file(pan_json, pan_json_path, cat_by_id) if pan_json is not None else {}
     gt_json_path = root / "gt" / "panoptic.json"
     gt_segs_by_file = (
-        _segments_by_file(_read_json(gt_json_path), gt_json_path, cat_by_id) if gt_json_path.is_file() else {}
+        _segments_by_file(read_json(gt_json_path), gt_json_path, cat_by_id) if gt_json_path.is_file() else {}
     )
 
     frames: list[Frame] = []

@@ -1,4 +1,4 @@
-"""Evaluation: metrics on plain numpy arrays (DESIGN.md section 4).
+"""Evaluation: metrics on plain numpy arrays (docs/metrics.md).
 
 - :func:`pq_scene` — scene-level panoptic quality (PQ^scene of Panoptic Lifting)
 - :func:`miou`, :func:`confusion_matrix` — semantic mIoU over GT-valid pixels

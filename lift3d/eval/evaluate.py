@@ -1,4 +1,4 @@
-"""``lift3d eval``: every metric of DESIGN.md section 4 for a trained run, beside the pseudo-label baseline.
+"""``lift3d eval``: every metric of docs/metrics.md for a trained run, beside the pseudo-label baseline.
 
 The pipeline is split so that each stage can be used (and tested) on its own:
 
@@ -20,9 +20,7 @@ from __future__ import annotations
 
 import json
 import math
-import os
 import statistics
-import tempfile
 import time
 from dataclasses import dataclass
 from pathlib import Path
@@ -35,12 +33,14 @@ import torch
 from lift3d import __version__
 from lift3d.data.scene import Scene
 from lift3d.errors import InputError
-from lift3d.eval.metrics import depth_error, miou, pq_scene, psnr_per_image
+from lift3d.eval.frame_metrics import FRAME_METRICS, depth_reference
+from lift3d.eval.metrics import miou, pq_scene
 from lift3d.eval.points3d import points3d
 from lift3d.export.pointcloud import extract_labelled_points
 from lift3d.model.run import LoadedRun, load_run
 from lift3d.render.images import render_frame
 from lift3d.utils.atomic import write_text_atomic
+from lift3d.utils.files import check_writable
 from lift3d.utils.progress import progress_bar
 
 __all__ = [
@@ -49,7 +49,6 @@ __all__ = [
     "LabelStack",
     "RenderedSplit",
     "compute_2d_metrics",
-    "frame_psnrs",
     "render_split",
     "gt_labels",
     "pseudo_labels",
@@ -60,7 +59,6 @@ __all__ = [
     "evaluate_run",
     "json_safe",
     "write_metrics",
-    "check_writable",
     "trained_frames_warning",
 ]
 
@@ -210,16 +208,6 @@ def _has_gt_panoptic(scene: Scene, frames: Sequence[int]) -> bool:
     return all(scene.frames[int(i)].gt_panoptic_path is not None for i in frames)
 
 
-def _depth_reference(scene: Scene, frames: Sequence[int]) -> str | None:
-    """What rendered depth is scored against: the exact ``gt_depth_file_path`` maps when every frame has one
-    (synthetic scenes, whose input depth may be noisy or absent), else the input ``depth_file_path``."""
-    if all(scene.frames[int(i)].gt_depth_path is not None for i in frames):
-        return "gt_depth"
-    if all(scene.frames[int(i)].depth_path is not None for i in frames):
-        return "depth"
-    return None
-
-
 def trained_frames_warning(scene: Scene, frames: Sequence[int]) -> tuple[list[str], list[str]]:
     """The scored ``frames`` that are also training frames (their names), and a warning about them (or none)."""
     train = set(int(i) for i in scene.split("train"))
@@ -228,12 +216,6 @@ def trained_frames_warning(scene: Scene, frames: Sequence[int]) -> tuple[list[st
         return [], []
     return both, [f"{len(both)} of the {len(frames)} scored frames are also training frames: their numbers "
                   "measure fitting, not generalisation (see frames_also_trained)"]
-
-
-def frame_psnrs(scene: Scene, rendered: RenderedSplit) -> list[float]:
-    """PSNR of every rendered frame against its photo (RGB in [0, 1]); the scene's PSNR is their mean."""
-    return [float(psnr_per_image(r[None], (scene.image(i).astype(np.float32) / 255.0)[None])[0])
-            for i, r in zip(rendered.frames, rendered.rgb)]
 
 
 # --------------------------------------------------------------------------------------- assembling
@@ -250,7 +232,8 @@ def _empty_2d_block() -> dict:
 
 def metrics_from_arrays(scene: Scene, frames: Sequence[int], rendered: RenderedSplit, *,
                         with_baseline: bool = True) -> dict:
-    """The 2D part of ``metrics.json`` from rendered frames: PSNR, depth errors, labels and baseline.
+    """The 2D part of ``metrics.json`` from rendered frames: labels and baseline, and every registered
+    metric of rendered frames (:mod:`lift3d.eval.frame_metrics`: PSNR, depth errors).
 
     Parameters
     ----------
@@ -276,12 +259,13 @@ def metrics_from_arrays(scene: Scene, frames: Sequence[int], rendered: RenderedS
     if list(rendered.frames) != frames:
         raise ValueError("metrics_from_arrays: rendered frames differ from frames")
     notes: list[str] = []
-    psnrs = frame_psnrs(scene, rendered)
-    out: dict[str, Any] = {"psnr": float(np.mean(psnrs)), "psnr_per_frame": psnrs}
+    out: dict[str, Any] = {}
+    for metric in FRAME_METRICS.values():
+        out.update(metric.compute(scene, frames, rendered))
 
     has_pan = _has_gt_panoptic(scene, frames)
-    depth_ref = _depth_reference(scene, frames)
-    out["gt"] = {"panoptic": has_pan, "depth": depth_ref is not None, "points": scene.gt_points_path is not None}
+    out["gt"] = {"panoptic": has_pan, "depth": depth_reference(scene, frames) is not None,
+                 "points": scene.gt_points_path is not None}
     if has_pan:
         gts = gt_labels(scene, frames)
         things, stuff = scene.thing_ids, scene.stuff_ids
@@ -296,14 +280,6 @@ def metrics_from_arrays(scene: Scene, frames: Sequence[int], rendered: RenderedS
                      "only PSNR (and depth / 3D where their GT exists) is computed, no pseudo-label baseline")
         out.update(_empty_2d_block())
         out["pseudo_labels"] = None
-
-    if depth_ref is not None:
-        read = scene.gt_depth if depth_ref == "gt_depth" else scene.depth
-        gd = np.concatenate([read(i).ravel() for i in frames])
-        pd = np.concatenate([np.asarray(d, np.float32).ravel() for d in rendered.depth])
-        out["depth"] = {**depth_error(pd, gd), "reference": depth_ref}
-    else:
-        out["depth"] = None
     out["notes"] = notes
     return out
 
@@ -476,29 +452,6 @@ def json_safe(obj: Any) -> Any:
     if isinstance(obj, Path):
         return str(obj)
     return obj
-
-
-def check_writable(path: str | Path) -> Path:
-    """Fail early (before minutes of rendering) when ``path`` cannot be written.
-
-    Creates the parent folder if needed and writes and removes a temporary file in it.
-
-    Raises
-    ------
-    InputError
-        Naming ``path`` and why it cannot be written.
-    """
-    path = Path(path)
-    if path.is_dir():
-        raise InputError(path, "is a folder; give a file name for the JSON")
-    try:
-        path.parent.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".probe", dir=path.parent)
-        os.close(fd)
-        os.unlink(tmp)
-    except OSError as exc:
-        raise InputError(path, f"cannot be written ({exc.strerror or exc})") from exc
-    return path
 
 
 def write_metrics(metrics: dict, path: str | Path) -> Path:

@@ -2,7 +2,7 @@
 
 Every function here takes numpy arrays (anything ``np.asarray`` accepts) and
 returns plain Python numbers / dicts, so the results can go straight into
-``metrics.json``.  The exact definitions are those of DESIGN.md section 4; they
+``metrics.json``.  The exact definitions are those of docs/metrics.md; they
 reproduce Panoptic Lifting's evaluator (``util/panoptic_quality.py`` and
 ``util/metrics.py``) bit for bit where it matters:
 
@@ -174,7 +174,7 @@ def pq_scene(
 
     All frames are evaluated together: a thing segment is every pixel, across
     all frames, with the same (class, instance id), so instance ids must be
-    consistent across frames to score well.  The rules (DESIGN.md section 4):
+    consistent across frames to score well.  The rules (docs/metrics.md):
 
     1. pixels whose GT semantic is ``void`` are dropped, in prediction and GT;
     2. the remaining pixels of all frames form one list;

@@ -1,4 +1,4 @@
-"""3D metrics: a labelled predicted point cloud against labelled GT points (DESIGN.md section 4).
+"""3D metrics: a labelled predicted point cloud against labelled GT points (docs/metrics.md).
 
 Labels are transferred from the prediction to the GT points by nearest
 neighbour (``scipy.spatial.cKDTree``) within ``tau``; the point labels are then
@@ -108,7 +108,7 @@ def points3d(
         present classes.
     min_area : float
         Class-area filter of ``miou`` and ``pq``: a class under this fraction of the scored GT points in the
-        prediction and in the GT (mIoU) or in either (PQ) is not scored, as in the 2D metrics (DESIGN.md
+        prediction and in the GT (mIoU) or in either (PQ) is not scored, as in the 2D metrics (docs/metrics.md
         section 4; default 0.005). The ``*_strict`` keys are the same metrics at 0.
     min_instance_points : int
         GT thing instances with at least this many GT points count for ``instance_recall``.

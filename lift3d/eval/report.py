@@ -21,6 +21,8 @@ from __future__ import annotations
 import math
 from typing import Any
 
+from lift3d.eval.frame_metrics import FRAME_METRICS
+
 __all__ = ["format_eval_table", "fmt"]
 
 
@@ -96,14 +98,7 @@ def format_eval_table(m: dict) -> str:
         ns = m.get("stuff") or {}
         lines.append(f"{'':22}classes scored: {nt.get('n', '-')} things + {ns.get('n', '-')} stuff "
                      f"(strict {nt.get('n_strict', '-')} + {ns.get('n_strict', '-')})")
-    parts = [f"PSNR {fmt(m.get('psnr'), 2)} dB"]
-    d = m.get("depth")
-    if d:
-        parts.append(f"depth abs-rel {fmt(d.get('abs_rel'))}, RMSE {fmt(d.get('rmse'))}, MAE {fmt(d.get('mae'))} "
-                     f"({d.get('n_valid')} px{', vs exact GT depth' if d.get('reference') == 'gt_depth' else ''})")
-    else:
-        parts.append("depth: no GT depth")
-    lines.append(" | ".join(parts))
+    lines.append(" | ".join(metric.describe(m, fmt) for metric in FRAME_METRICS.values()))
     p = m.get("points3d")
     if p:
         lines.append(f"3D ({p.get('source')}, {p.get('n_pred')} points vs {p.get('n_gt')} GT, "

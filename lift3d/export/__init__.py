@@ -1,4 +1,4 @@
-"""Labelled geometry out of a trained run: what robot mapping consumes (DESIGN.md section 3).
+"""Labelled geometry out of a trained run: what robot mapping consumes (docs/export.md).
 
 Modules:
 
@@ -30,10 +30,8 @@ Export a run's labelled point cloud and mesh into a folder, then read it back::
 from __future__ import annotations
 
 import dataclasses
-import os
 import re
 import sys
-import tempfile
 import time
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -47,8 +45,10 @@ from lift3d.export import json_files
 from lift3d.export.ground import floor_class_ids, resolve_up
 from lift3d.export.scene_graph import build_scene_graph, write_scene_graph_json
 from lift3d.export.writers import ExportContext, ExportOptions, check_formats
+from lift3d.utils.files import check_writable
 
 if TYPE_CHECKING:  # torch-backed types, for annotations only (see the module docstring)
+    from lift3d.data.scene import Scene
     from lift3d.model.run import LoadedRun
 
 __all__ = ["export_run", "extract_labelled_points", "LabelledPoints", "benchmark_export", "ExportOptions"]
@@ -62,29 +62,11 @@ def __getattr__(name: str):
     raise AttributeError(f"module 'lift3d.export' has no attribute {name!r}")
 
 
-def check_writable(output_dir: str | Path) -> Path:
-    """Create ``output_dir`` if needed and prove a file can be created in it, before any work is done.
-
-    Raises
-    ------
-    InputError
-        Naming the folder when it cannot be created or written.
-    """
-    out = Path(output_dir)
-    try:
-        out.mkdir(parents=True, exist_ok=True)
-        fd, probe = tempfile.mkstemp(prefix=".lift3d-write-test.", dir=out)
-        os.close(fd)
-        os.unlink(probe)
-    except OSError as exc:
-        raise InputError(out, f"output folder is not writable ({exc.strerror or exc})") from exc
-    return out
-
-
 def export_run(run: str | Path, output_dir: str | Path | None = None, *, pointcloud: bool = True, mesh: bool = False,
                formats: tuple[str, ...] | list[str] = ("ply",), data: str | Path | None = None,
                split_instances: bool = False, resolution: int = 256, options=None,
-               command: str | None = None, progress: bool = False, loaded: LoadedRun | None = None, scene=None,
+               command: str | None = None, progress: bool = False, loaded: LoadedRun | None = None,
+               scene: Scene | None = None,
                **point_options: Any) -> dict[str, Any]:
     """Export a trained run's labelled geometry into ``output_dir`` (every file written atomically).
 
@@ -132,7 +114,7 @@ def export_run(run: str | Path, output_dir: str | Path | None = None, *, pointcl
     writers = check_formats(formats)  # unknown names and missing extras fail before any work
     if not pointcloud and not mesh:
         raise InputError("lift3d export", "nothing to export: give --pointcloud and/or --mesh")
-    out = check_writable(output_dir if output_dir is not None else Path(run) / "export")
+    out = check_writable(output_dir if output_dir is not None else Path(run) / "export", folder=True)
     started = time.perf_counter()
     if loaded is None:
         loaded = load_run(run, point_options.get("device") or "auto")

@@ -17,26 +17,17 @@ Examples
 
 from __future__ import annotations
 
-import json
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from lift3d.data.categories import Category, read_class_table
 from lift3d.data.ply import read_labelled_ply
 from lift3d.errors import InputError
 from lift3d.export.writers.pcd import read_pcd
-
-
-@dataclass(frozen=True)
-class ClassInfo:
-    """One row of ``classes.json``."""
-
-    id: int
-    name: str
-    isthing: bool
-    color: tuple[int, int, int]
+from lift3d.utils.files import read_json
 
 
 @dataclass
@@ -55,7 +46,7 @@ class LabelledPointCloud:
         ``[N]`` int32 instance ids (0 = stuff / no instance).
     confidence : np.ndarray or None
         ``[N]`` float32 probability of the chosen class.
-    classes : dict[int, ClassInfo]
+    classes : dict[int, Category]
         From ``classes.json`` beside the file (empty when absent).
     metadata : dict
         ``metadata.json`` beside the file (empty when absent).
@@ -67,7 +58,7 @@ class LabelledPointCloud:
     semantic: np.ndarray
     instance: np.ndarray
     confidence: np.ndarray | None
-    classes: dict[int, ClassInfo] = field(default_factory=dict)
+    classes: dict[int, Category] = field(default_factory=dict)
     metadata: dict[str, Any] = field(default_factory=dict)
     path: Path | None = None
 
@@ -153,30 +144,6 @@ def _export_file(path: str | Path, name: str) -> Path:
     return p
 
 
-def _read_json(path: Path) -> Any:
-    try:
-        return json.loads(path.read_text())
-    except (OSError, ValueError) as exc:
-        raise InputError(path, f"not readable JSON ({exc})") from exc
-
-
-def load_classes(path: str | Path) -> dict[int, ClassInfo]:
-    """``classes.json`` as ``{id: ClassInfo}`` (a folder containing it also works)."""
-    p = _export_file(path, "classes.json")
-    raw = _read_json(p)
-    rows = raw.get("classes", raw) if isinstance(raw, dict) else raw
-    try:
-        return {int(r["id"]): ClassInfo(int(r["id"]), str(r["name"]), bool(r["isthing"]),
-                                        _rgb(r.get("color", (128, 128, 128)))) for r in rows}
-    except (KeyError, TypeError, ValueError) as exc:
-        raise InputError(p, f"classes need id, name, isthing ({exc})") from exc
-
-
-def _rgb(color) -> tuple[int, int, int]:
-    r, g, b = (int(c) for c in color)
-    return r, g, b
-
-
 def load_labelled_points(path: str | Path) -> LabelledPointCloud:
     """Load an exported labelled point cloud.
 
@@ -208,13 +175,19 @@ def load_labelled_points(path: str | Path) -> LabelledPointCloud:
             raise InputError(p, "no 'semantic' vertex property: not a labelled point cloud")
         data = {"xyz": d["xyz"], "rgb": d.get("rgb"), "semantic": d["semantic"],
                 "instance": d.get("instance", np.zeros(n, np.int32)), "confidence": d.get("confidence")}
-    classes = load_classes(p.parent) if (p.parent / "classes.json").is_file() else {}
-    metadata = _read_json(p.parent / "metadata.json") if (p.parent / "metadata.json").is_file() else {}
+    classes_path, metadata_path = p.parent / "classes.json", p.parent / "metadata.json"
+    classes = {c.id: c for c in read_class_table(classes_path)} if classes_path.is_file() else {}
+    metadata = read_json(metadata_path) if metadata_path.is_file() else {}
     return LabelledPointCloud(classes=classes, metadata=metadata, path=p, **data)
 
 
 def instances(path: str | Path) -> list[InstanceRecord]:
     """Per-instance records from ``instances.json`` (or the export folder holding it), in id order.
+
+    The file is a dict with an ``instances`` list (what ``lift3d export`` writes) or the list itself. Each
+    record needs ``id`` and a box: ``obb`` (``center``, ``rotation`` or ``R``, ``extent``) and/or ``aabb``
+    (``min``, ``max``), each made from the other when absent. ``class_id`` (or ``semantic``), ``class_name``,
+    ``count``, ``centroid`` and ``mean_confidence`` default to 0, ``class_<id>``, 0, the box centre and NaN.
 
     Examples
     --------
@@ -228,20 +201,35 @@ def instances(path: str | Path) -> list[InstanceRecord]:
     [(1, 'chair', [2.0, 2.0, 2.0])]
     """
     p = _export_file(path, "instances.json")
-    raw = _read_json(p)
-    rows = raw.get("instances", []) if isinstance(raw, dict) else raw
+    raw = read_json(p)
+    rows = raw.get("instances") if isinstance(raw, dict) else raw
+    if not isinstance(rows, list):
+        raise InputError(p, "expected a list of instance records (or an 'instances' list)")
     out = []
-    try:
-        for r in rows:
-            obb = r["obb"]
-            out.append(InstanceRecord(
-                id=int(r["id"]), class_id=int(r["class_id"]), class_name=str(r.get("class_name", "")),
-                count=int(r["count"]), centroid=np.asarray(r["centroid"], float),
-                aabb=np.asarray([r["aabb"]["min"], r["aabb"]["max"]], float),
-                obb=OrientedBox3D(np.asarray(obb["center"], float), np.asarray(obb["rotation"], float),
-                                  np.asarray(obb["extent"], float)),
-                mean_confidence=float(r.get("mean_confidence", float("nan"))),
-            ))
-    except (KeyError, TypeError, ValueError) as exc:
-        raise InputError(p, f"malformed instance record ({exc!r})") from exc
+    for k, r in enumerate(rows):
+        try:
+            out.append(_instance_record(r))
+        except (AttributeError, KeyError, TypeError, ValueError) as exc:
+            raise InputError(p, f"instances[{k}]: not an instance record with an obb or aabb ({exc})") from None
     return sorted(out, key=lambda r: r.id)
+
+
+def _instance_record(r: dict) -> InstanceRecord:
+    obb, aabb = r.get("obb"), r.get("aabb")
+    if obb:
+        box = OrientedBox3D(np.asarray(obb["center"], float), np.asarray(obb.get("rotation", obb.get("R")), float),
+                            np.asarray(obb["extent"], float))
+    else:
+        lo, hi = np.asarray(aabb["min"], float), np.asarray(aabb["max"], float)
+        box = OrientedBox3D((lo + hi) / 2.0, np.eye(3), hi - lo)
+    if box.center.shape != (3,) or box.rotation.shape != (3, 3) or box.extent.shape != (3,):
+        raise ValueError("the box has the wrong shape")
+    corners = box.corners()
+    bounds = (np.asarray([aabb["min"], aabb["max"]], float) if aabb
+              else np.stack([corners.min(0), corners.max(0)]))
+    class_id = int(r.get("class_id", r.get("semantic", 0)) or 0)
+    return InstanceRecord(
+        id=int(r["id"]), class_id=class_id, class_name=str(r.get("class_name") or f"class_{class_id}"),
+        count=int(r.get("count", 0)), centroid=np.asarray(r.get("centroid", box.center), float), aabb=bounds,
+        obb=box, mean_confidence=float(r.get("mean_confidence", float("nan"))),
+    )

@@ -2,9 +2,10 @@
 
 Three steps turn points into what a robot map consumes:
 
-1. :func:`query_point_labels` runs the field once per point (in chunks): density, colour, semantic and
-   instance probabilities → category id (argmax, void excluded), raw instance *channel* (argmax over the
-   instance channels, only on thing classes), and the probability of the chosen class.
+1. :meth:`lift3d.model.panoptic.PanopticModel.query_labels` runs the field once per point (in chunks):
+   density, colour, semantic and instance probabilities → category id (argmax, void excluded), raw instance
+   *channel* (argmax over the instance channels, only on thing classes), and the probability of the chosen
+   class.
 2. :func:`assign_instances` turns raw channels into exported instances. A thing instance is a spatially
    connected set of points with the same (class, channel): a channel the field shares between two
    separated objects of one class becomes two instances. Components smaller than ``min_points`` are
@@ -30,12 +31,6 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
-import torch
-
-from lift3d.model.config import load_config
-from lift3d.model.labels import LabelSpace
-from lift3d.model.panoptic import PanopticModel
-from lift3d.utils.progress import progress_bar
 
 #: Neighbour offsets that, with their negatives, make the 26-neighbourhood of a voxel (each edge once).
 _HALF_NEIGHBOURHOOD = np.array(
@@ -45,79 +40,6 @@ _HALF_NEIGHBOURHOOD = np.array(
 
 #: Neighbours consulted when a small fragment is relabelled to its surroundings.
 FRAGMENT_NEIGHBOURS = 8
-
-
-# ------------------------------------------------------------------------------------------ head queries
-@dataclass
-class PointLabels:
-    """Field values and labels at query points (numpy, one row per point)."""
-
-    sigma: np.ndarray  # [N] float32 density (normalised units)
-    rgb: np.ndarray  # [N, 3] uint8
-    semantic: np.ndarray  # [N] int32 category id (never void)
-    channel: np.ndarray  # [N] int32 raw instance channel 1..V on thing classes, 0 on stuff
-    confidence: np.ndarray  # [N] float32 probability of the chosen class
-
-
-def query_point_labels(model: PanopticModel, x_normalized, view_dirs=None, *, chunk: int = 32768, progress: bool = False,
-                       desc: str = "label points") -> PointLabels:
-    """Run density, colour, semantic and instance heads once per point, in chunks, without rendering.
-
-    Parameters
-    ----------
-    model : PanopticModel
-        A trained model (evaluation mode).
-    x_normalized : array_like or Tensor
-        ``[N, 3]`` points in normalised scene coordinates (uncontracted).
-    view_dirs : array_like or Tensor, optional
-        ``[N, 3]`` unit directions the colour is seen along (e.g. from a camera that sees the point).
-        Default: looking down ``-z``.
-    chunk : int
-        Points per chunk; 32768 keeps every temporary under ~16 MiB (PERFORMANCE.md: the allocator, not the
-        arithmetic, dominates larger chunks on CPU).
-    progress : bool
-        Show a progress bar.
-
-    Returns
-    -------
-    PointLabels
-
-    Examples
-    --------
-    >>> from lift3d.export.instances import _tiny_model
-    >>> import torch
-    >>> labels = query_point_labels(_tiny_model(), torch.zeros(3, 3))
-    >>> labels.semantic.shape, labels.rgb.dtype, bool((labels.semantic > 0).all())
-    ((3,), dtype('uint8'), True)
-    """
-    device = next(model.parameters()).device
-    x = torch.as_tensor(x_normalized, dtype=torch.float32)
-    n = x.shape[0]
-    if view_dirs is None:
-        dirs = torch.tensor([[0.0, 0.0, -1.0]]).expand(n, 3)
-    else:
-        dirs = torch.as_tensor(view_dirs, dtype=torch.float32)
-    out = PointLabels(
-        sigma=np.empty(n, np.float32), rgb=np.empty((n, 3), np.uint8), semantic=np.empty(n, np.int32),
-        channel=np.empty(n, np.int32), confidence=np.empty(n, np.float32),
-    )
-    field = model.field
-    with torch.no_grad():
-        for s in progress_bar(range(0, n, chunk), desc=desc, disable=not progress, leave=False, unit="chunk"):
-            xs = x[s:s + chunk].to(device)
-            ds = torch.nn.functional.normalize(dirs[s:s + chunk].to(device), dim=-1)
-            sigma, geo, u = field.geometry(xs)
-            sem_logits, inst_logits = field.labels(u, geo)
-            rgb = field.color(geo, ds)
-            inst_probs = None if inst_logits is None else torch.softmax(inst_logits, -1)
-            category, channel, conf = model.panoptic_from_probs(torch.softmax(sem_logits, -1), inst_probs)
-            e = s + xs.shape[0]
-            out.sigma[s:e] = sigma.cpu().numpy()
-            out.rgb[s:e] = (rgb.clamp(0, 1) * 255.0 + 0.5).to(torch.uint8).cpu().numpy()
-            out.semantic[s:e] = category.cpu().numpy()
-            out.channel[s:e] = channel.cpu().numpy()
-            out.confidence[s:e] = conf.cpu().numpy()
-    return out
 
 
 # ------------------------------------------------------------------------------------------ components
@@ -427,14 +349,3 @@ def instance_records(xyz: np.ndarray, semantic: np.ndarray, instance: np.ndarray
             "mean_confidence": float(np.mean(np.asarray(confidence)[members])),
         })
     return records
-
-
-def _tiny_model() -> PanopticModel:
-    """A small untrained :class:`~lift3d.model.panoptic.PanopticModel` for doctests and unit tests."""
-    torch.manual_seed(0)
-    cfg = load_config("fast", "indoor", None)
-    cfg.field.grid.max_resolution, cfg.field.grid.min_resolution = 16, 8
-    cfg.field.num_semantic_classes, cfg.field.num_instance_channels = 4, 3
-    cfg.field.contraction = "none"
-    labels = LabelSpace(semantic_ids=[1, 2, 3], thing_ids=[3])
-    return PanopticModel(cfg, labels).eval()

@@ -16,7 +16,7 @@ reaches opacity 0.5: ``τ = ln 2 / voxel``. ``--density-threshold`` overrides bo
 
 *Grid.* Density is evaluated on a lattice of ``resolution³`` cells over the field's domain (the box
 ``[-1, 1]³`` for bounded scenes, contracted space ``[-2, 2]³`` for unbounded ones) in two passes, so that
-only occupied cells are queried (PERFORMANCE.md): a coarse lattice (64³ cells, or the field's finest grid
+only occupied cells are queried: a coarse lattice (64³ cells, or the field's finest grid
 resolution when that is finer, so that a surface one grid cell thick is never missed), then the fine
 lattice only inside coarse cells whose corner densities come within a factor 4 of ``τ`` (or straddle it),
 dilated by one coarse cell. Other fine nodes take the trilinear upsampling of the coarse lattice, which
@@ -57,7 +57,7 @@ from scipy.spatial import cKDTree
 
 from lift3d.data.scene import Scene
 from lift3d.errors import InputError
-from lift3d.export.instances import assign_instances, query_point_labels
+from lift3d.export.instances import assign_instances
 from lift3d.field.encodings import uncontract
 from lift3d.model.normalization import SceneNormalization
 from lift3d.model.panoptic import PanopticModel
@@ -266,7 +266,7 @@ def field_isosurface(model: PanopticModel, threshold: float, resolution: int = 2
 
     Examples
     --------
-    >>> from lift3d.export.instances import _tiny_model
+    >>> from lift3d.model.panoptic import _tiny_model
     >>> surf = field_isosurface(_tiny_model(), threshold=1e9, resolution=16)  # nothing that dense
     >>> surf.faces.shape, surf.resolution
     ((0, 3), 16)
@@ -390,7 +390,7 @@ def refine_to_rendered_surface(model: PanopticModel, surface: FieldSurface, *, o
 
     Examples
     --------
-    >>> from lift3d.export.instances import _tiny_model
+    >>> from lift3d.model.panoptic import _tiny_model
     >>> m = _tiny_model()
     >>> s = field_isosurface(m, threshold=1e9, resolution=16)
     >>> refine_to_rendered_surface(m, s).stats["refine"]["moved"]
@@ -617,7 +617,7 @@ def extract_labelled_mesh(loaded: LoadedRun, scene: Scene, *, resolution: int = 
     if len(surface.vertices):
         _, nearest = cKDTree(centers).query(surface.vertices.astype(np.float64), workers=-1)
         dirs = view_directions(surface.vertices, centers[nearest])
-    labels = query_point_labels(model, surface.vertices, dirs, progress=progress, desc="label vertices")
+    labels = model.query_labels(surface.vertices, dirs, progress=progress, desc="label vertices")
     transform = world_from_normalized(loaded.norm)
     xyz = to_frame(surface.vertices, transform, frame)
     grid_step_out = _length_to_frame(_normalized_voxel(surface), loaded.norm, frame)

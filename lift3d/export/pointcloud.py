@@ -46,7 +46,7 @@ import torch
 from lift3d.data.ply import write_labelled_ply
 from lift3d.data.scene import Scene
 from lift3d.errors import InputError
-from lift3d.export.instances import assign_instances, query_point_labels, voxel_downsample_majority
+from lift3d.export.instances import assign_instances, voxel_downsample_majority
 from lift3d.export.mesh import (
     CameraVisibility,
     _check_frame,
@@ -353,7 +353,7 @@ def _surface_points(loaded: LoadedRun, scene: Scene, num_points: int, density_th
     x = uncontract(points_grid, surface.contraction) if surface.contraction != "none" else points_grid
     dirs = view_directions(x, cams.centers[seen_by[seen[pick]]])
     t = time.perf_counter()
-    labels = query_point_labels(model, x.astype(np.float32), dirs, progress=progress)
+    labels = model.query_labels(x.astype(np.float32), dirs, progress=progress)
     timings["heads"] = time.perf_counter() - t
     thresholds = {
         "density": tau, "density_rule": info, "surface_resolution": surface.resolution,
@@ -401,7 +401,7 @@ def _ray_points(loaded: LoadedRun, scene: Scene, num_points: int, progress: bool
     if len(x) == 0:
         raise InputError(loaded.run.path, "no training ray reaches opacity 0.5: the field is empty")
     t = time.perf_counter()
-    labels = query_point_labels(model, x, np.concatenate(dirs_kept), progress=progress)
+    labels = model.query_labels(x, np.concatenate(dirs_kept), progress=progress)
     timings["heads"] = time.perf_counter() - t
     field_voxel = 2.0 * (1.0 if model.bounded else 2.0) / lattice_resolution(model)
     return {"x": x.astype(np.float64), "labels": labels, "rgb": np.concatenate(rgbs),

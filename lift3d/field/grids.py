@@ -1,6 +1,6 @@
 """Dense voxel feature grids with a CPU-friendly trilinear lookup.
 
-Measured on 2-core CPUs (PERFORMANCE.md): 3-D ``F.grid_sample`` and ``F.embedding``'s backward are several
+Measured on 2-core CPUs: 3-D ``F.grid_sample`` and ``F.embedding``'s backward are several
 times slower than gathering the 8 corners with ``index_select`` from a channels-last table and scattering
 the backward with ``index_add_``. :func:`grid_lookup` does exactly that; :func:`grid_lookup_reference`
 is the plain ``grid_sample`` version the tests compare it against.

@@ -22,7 +22,6 @@ thing/stuff), otherwise evaluation would compare different classes.
 from __future__ import annotations
 
 import io
-import json
 import os
 import shutil
 import time
@@ -33,8 +32,9 @@ from typing import Any, Iterator, Sequence
 import numpy as np
 
 from lift3d.convert.predictions import load_categories, parse_categories
+from lift3d.data.categories import Category
 from lift3d.data.images import read_rgb, write_label_map, write_panoptic_png
-from lift3d.data.scene import Category, Segment, load_scene
+from lift3d.data.scene import Segment, load_scene, read_transforms
 from lift3d.errors import InputError
 from lift3d.label.classes import coco_sources, load_class_mapping, sources_from_categories, sources_from_labels
 from lift3d.label.mask2former import Mask2FormerLabeler, load_mask2former, load_mask2former_config
@@ -42,6 +42,7 @@ from lift3d.label.predictions import convert_prediction, find_prediction, read_p
 from lift3d.label.tta import augmentations
 from lift3d.utils.atomic import write_bytes_atomic, write_json_atomic
 from lift3d.utils.device import resolve_device, set_threads
+from lift3d.utils.files import read_json
 from lift3d.utils.progress import progress_bar
 
 __all__ = ["label_with_model", "label_from_predictions", "LabelScene", "read_label_scene", "FrameLabels"]
@@ -93,17 +94,6 @@ class LabelScene:
     gt_categories: dict[int, Category] = field(default_factory=dict)  # categories the GT uses, by id
 
 
-def _read_json(path: Path) -> Any:
-    if not path.is_file():
-        raise InputError(path, "file not found")
-    try:
-        return json.loads(path.read_text(encoding="utf-8"))
-    except json.JSONDecodeError as exc:
-        raise InputError(path, f"not valid JSON (line {exc.lineno}: {exc.msg})") from exc
-    except (OSError, UnicodeDecodeError) as exc:
-        raise InputError(path, f"cannot be read ({exc})") from exc
-
-
 def _int_or_none(value: Any) -> int | None:
     try:
         return int(value) if value is not None else None
@@ -120,12 +110,7 @@ def read_label_scene(root: str | Path) -> LabelScene:
         Missing folder or ``transforms.json``, frames without images, two frames with the same file stem.
     """
     root = Path(root)
-    if not root.is_dir():
-        raise InputError(root, "scene folder not found")
-    tpath = root / "transforms.json"
-    meta = _read_json(tpath)
-    if not isinstance(meta, dict) or not isinstance(meta.get("frames"), list) or not meta["frames"]:
-        raise InputError(tpath, "frames: missing or empty")
+    tpath, meta = read_transforms(root)
     frames: list[LabelFrame] = []
     names: dict[str, int] = {}
     for k, fr in enumerate(meta["frames"]):
@@ -153,7 +138,7 @@ def _gt_categories(root: Path, meta: dict) -> dict[int, Category]:
     if not gt_json.is_file():
         return {}
 
-    raw = _read_json(gt_json)
+    raw = read_json(gt_json)
     cats_raw = meta.get("categories") or (raw.get("categories") if isinstance(raw, dict) else None)
     where = root / "transforms.json" if meta.get("categories") else gt_json
     defined = {c.id: c for c in parse_categories(cats_raw, where)} if cats_raw else {}

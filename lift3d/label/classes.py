@@ -32,7 +32,6 @@ Built-in vocabularies (``--classes coco`` or ``--classes scannet21``): :data:`CO
 from __future__ import annotations
 
 import difflib
-import json
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Iterable, Mapping, Sequence
@@ -40,8 +39,9 @@ from typing import Any, Iterable, Mapping, Sequence
 import numpy as np
 
 from lift3d.convert.predictions import parse_categories
-from lift3d.data.scene import Category
+from lift3d.data.categories import Category
 from lift3d.errors import InputError
+from lift3d.utils.files import read_json
 
 # COCO panoptic's 133 categories (panopticapi's panoptic_coco_categories.json): id, isthing, colour, name.
 # Row order is the contiguous class index Mask2Former and detectron2 use (0 = person ... 132 = rug-merged).
@@ -517,12 +517,5 @@ def load_class_mapping(spec: str | Path | None, sources: Sequence[SourceClass]) 
     if str(spec) == "scannet21":
         return mapping_from_targets(SCANNET21, sources, "--classes scannet21")
     path = Path(spec)
-    if not path.is_file():
-        raise InputError(path, f"classes file not found (or use a built-in: {', '.join(BUILTIN_VOCABULARIES)})")
-    try:
-        raw = json.loads(path.read_text(encoding="utf-8"))
-    except json.JSONDecodeError as exc:
-        raise InputError(path, f"not valid JSON (line {exc.lineno}: {exc.msg})") from exc
-    except (OSError, UnicodeDecodeError) as exc:
-        raise InputError(path, f"cannot be read ({exc})") from exc
+    raw = read_json(path, missing=f"classes file not found (or use a built-in: {', '.join(BUILTIN_VOCABULARIES)})")
     return parse_classes(raw, sources, path)

@@ -1,4 +1,4 @@
-"""The loss of a training step: a registry of weighted loss terms (PAPER.md "Losses").
+"""The loss of a training step: a registry of weighted loss terms (the paper's losses, :mod:`lift3d.model.losses`).
 
 Every term is a function registered with :func:`loss_term` that reads the step's :class:`LossInputs` and
 returns its *weighted* value (the weight is applied where the term is computed), or None when it does not

@@ -1,4 +1,4 @@
-"""Every loss of the paper as a pure function (PAPER.md "Losses").
+"""Every loss of the paper as a pure function.
 
 ``L = L_color + 1.2 ΣL_distill + 0.1 L_sem + 0.1 L_ins + 0.12 L_seg + 0.2 L_feat + 0.001 (L_tv + L_disp)``;
 the weights and which terms a training step uses are :mod:`lift3d.model.loss_terms`.

@@ -1,4 +1,4 @@
-"""Scene normalisation and the sizes a scene determines (DESIGN.md section 6).
+"""Scene normalisation and the sizes a scene determines (docs/presets.md, "what the scene decides").
 
 The field lives in *normalised* coordinates: the foreground box maps to ``[-1, 1]^3``. For bounded scenes
 that box is the whole scene; for unbounded scenes everything outside it is contracted. The similarity
@@ -8,7 +8,6 @@ transform (uniform scale + translation, no rotation, so exports keep the user's 
 
 from __future__ import annotations
 
-import json
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -17,6 +16,7 @@ import numpy as np
 from lift3d.data.scene import Scene
 from lift3d.errors import InputError
 from lift3d.utils.atomic import write_json_atomic
+from lift3d.utils.files import read_json
 
 
 @dataclass
@@ -67,10 +67,11 @@ class SceneNormalization:
 
     @classmethod
     def load(cls, path: Path) -> "SceneNormalization":
+        raw = read_json(path)
         try:
-            return cls.from_json(json.loads(Path(path).read_text()))
-        except (OSError, ValueError, KeyError) as exc:
-            raise InputError(path, f"not a readable scene normalisation ({exc})") from exc
+            return cls.from_json(raw)
+        except (TypeError, ValueError, KeyError) as exc:
+            raise InputError(path, f"not a scene normalisation ({exc})") from exc
 
 
 def _optical_axes_focus(scene: Scene) -> tuple[np.ndarray, float]:

@@ -1,4 +1,4 @@
-"""The run folder (DESIGN.md section 2) and checkpoints.
+"""The run folder (its layout: ``lift3d train --help``, docs/cli.md) and checkpoints.
 
 ``<output-dir>/<scene>/<preset>/<YYYY-MM-DD_HHMMSS>/`` holds ``config.yml`` (every setting, including what
 was derived from the scene), ``transform.json`` (scene normalisation), ``checkpoints/step-000001000.pt``,

@@ -25,8 +25,6 @@ only. ``panoptic.json`` is written once, after the last frame.
 
 from __future__ import annotations
 
-import colorsys
-import json
 import math
 import time
 from dataclasses import dataclass, field
@@ -37,13 +35,15 @@ import cv2
 import numpy as np
 
 from lift3d.data.cameras import Cameras, is_rigid
+from lift3d.data.categories import Category
 from lift3d.data.images import write_label_map, write_panoptic_png, write_rgb
-from lift3d.data.scene import Category, default_category_color
 from lift3d.errors import InputError
 from lift3d.model.run import load_run
 from lift3d.render.images import FrameRender, render_frame
 from lift3d.render.rays import RayGenerator
 from lift3d.utils.atomic import write_json_atomic
+from lift3d.utils.colors import hash_colors
+from lift3d.utils.files import read_json
 from lift3d.utils.progress import progress_bar
 
 __all__ = [
@@ -59,7 +59,6 @@ __all__ = [
     "instance_colors",
     "colorize_depth",
     "resolve_outputs",
-    "categories_from_labels",
 ]
 
 #: Outputs ``lift3d render --outputs`` accepts (the ``*_vis`` previews may also be asked for alone).
@@ -174,22 +173,16 @@ def category_palette(categories: Sequence[Category]) -> np.ndarray:
 
 
 def instance_colors(n: int) -> np.ndarray:
-    """``uint8 [n, 3]`` distinct colours for instance ids ``0..n-1``; id 0 (no instance) is black.
-
-    Hues follow the golden-ratio sequence, so neighbouring ids get very different colours and the colour
-    of an id never depends on which other ids a frame shows.
+    """``uint8 [n, 3]`` colours of instance ids ``0..n-1`` (:func:`lift3d.utils.colors.hash_colors`, the
+    colour of an id in every picture lift3d draws); id 0 (no instance) is black.
 
     Examples
     --------
     >>> c = instance_colors(3); c[0].tolist(), len({tuple(x) for x in c.tolist()})
     ([0, 0, 0], 3)
     """
-    out = np.zeros((max(n, 1), 3), np.uint8)
-    for k in range(1, n):
-        h = (k * 0.6180339887498949) % 1.0
-        s = 0.65 + 0.35 * ((k * 7) % 3) / 2.0
-        v = 0.75 + 0.25 * ((k * 5) % 2)
-        out[k] = np.round(np.array(colorsys.hsv_to_rgb(h, s, v)) * 255)
+    out = hash_colors(np.arange(max(n, 1)))
+    out[0] = 0
     return out
 
 
@@ -216,14 +209,6 @@ def colorize_depth(depth: np.ndarray, near: float, far: float) -> np.ndarray:
     rgb = cv2.cvtColor(bgr, cv2.COLOR_BGR2RGB)
     rgb[~(d > 0)] = 0
     return rgb
-
-
-def categories_from_labels(semantic_ids: Sequence[int], thing_ids: Sequence[int]) -> list[Category]:
-    """Categories when the run's scene folder is gone: ids from the checkpoint's label space, generic names
-    and the same default colours the scene reader gives categories without a colour."""
-    things = set(int(t) for t in thing_ids)
-    return [Category(int(c), f"class_{int(c)}", int(c) in things, default_category_color(int(c)))
-            for c in semantic_ids]
 
 
 # --------------------------------------------------------------------------------------- writer
@@ -442,14 +427,7 @@ def load_camera_path(path: str | Path, defaults: Cameras | None = None) -> Camer
         Naming the file and the field that is missing or malformed.
     """
     path = Path(path)
-    if not path.is_file():
-        raise InputError(path, "camera path file not found")
-    try:
-        doc = json.loads(path.read_text(encoding="utf-8"))
-    except json.JSONDecodeError as exc:
-        raise InputError(path, f"not valid JSON (line {exc.lineno}: {exc.msg})") from exc
-    except (OSError, UnicodeDecodeError) as exc:
-        raise InputError(path, f"cannot be read ({exc})") from exc
+    doc = read_json(path, missing="camera path file not found")
     if isinstance(doc, list):
         top: dict = {}
         entries = doc
@@ -608,8 +586,7 @@ def render_to_folder(
     except InputError:
         if camera_path is None or data is not None:
             raise  # a split needs the scene's cameras; a --data that does not load is always an error
-    categories = list(scene.categories) if scene is not None else categories_from_labels(
-        loaded.labels.semantic_ids, loaded.labels.thing_ids)
+    categories = list(scene.categories) if scene is not None else list(loaded.classes.values())
     if camera_path is not None:
         cp = load_camera_path(camera_path, scene.cameras if scene is not None else None)
         rays = RayGenerator(cp.cameras, loaded.norm.c2w_normalized(cp.cameras.c2w), loaded.device)

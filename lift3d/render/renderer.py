@@ -4,7 +4,7 @@
 without gradients (evaluation, export). The field is a :class:`lift3d.field.base.Field` (its ``space``,
 ``geometry``, ``color`` and ``labels``).
 
-Speed on CPU (PERFORMANCE.md): density is needed at every sample, but the colour, semantic and instance
+Speed on CPU: density is needed at every sample, but the colour, semantic and instance
 decoders only matter where a sample has weight; they run only on samples with ``w > head_weight_threshold``
 (exact up to that threshold; no deferred decoding).
 """

@@ -1,4 +1,4 @@
-"""Volume rendering as small pure functions (PAPER.md "Rendering").
+"""Volume rendering as small pure functions (the paper's rendering equations).
 
 For a ray with samples ``i = 1..N`` at distances ``t_i`` and interval lengths ``Δt_i``::
 

@@ -1,5 +1,5 @@
 """``make_scene``: build a synthetic scene, place cameras, ray cast every view, simulate the 2D segmenter and
-the sensors, and write the scene folder (DESIGN.md section 1).
+the sensors, and write the scene folder (docs/scene-format.md).
 
 Random streams are separate and seeded from ``seed`` alone, so a scene is reproducible byte for byte and each
 option changes only what it is about (a ``moderate`` and a ``view-correlated`` scene of one seed differ only in

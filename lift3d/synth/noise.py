@@ -742,7 +742,7 @@ def class_iou(confusion: np.ndarray) -> np.ndarray:
 
 
 def semantic_miou(confusion: np.ndarray, min_area: float = 0.005) -> float:
-    """Mean IoU of predicted vs GT classes from a confusion matrix (DESIGN.md section 4's mIoU rules).
+    """Mean IoU of predicted vs GT classes from a confusion matrix (the mIoU rules of docs/metrics.md).
 
     Parameters
     ----------

@@ -24,7 +24,8 @@ from torch.profiler import record_function
 from lift3d import __version__
 from lift3d.data.scene import Scene, load_scene
 from lift3d.errors import InputError, TrainingDiverged
-from lift3d.eval.evaluate import compute_2d_metrics, frame_psnrs, gt_labels, pseudo_labels, render_split
+from lift3d.eval.evaluate import compute_2d_metrics, gt_labels, pseudo_labels, render_split
+from lift3d.eval.frame_metrics import frame_psnrs
 from lift3d.eval.metrics import psnr
 from lift3d.field import grids
 from lift3d.model.config import Config, config_from_dict, load_config, load_yaml, save_config, update_dataclass
@@ -59,8 +60,9 @@ def resolve_config(scene: Scene, preset: str, overrides: dict | None) -> tuple[C
     notes = {"bounded": norm.bounded, "why_bounded": why_bounded, "kind_defaults": kind}
     notes.update(cfg.field.kind_config.derive_sizes(
         lambda cap, minimum: derive_grid_resolution(scene, norm, cap, minimum)))
+    # The categories go into the run too (names and colours for lift3d.load_run without the scene folder).
     cfg.scene = {"data": str(scene.root.resolve()), "name": scene.name, **notes,
-                 "normalization": norm.to_json()}
+                 "normalization": norm.to_json(), "categories": [c.to_json() for c in scene.categories]}
     return cfg, norm
 
 

@@ -21,21 +21,13 @@ Examples
 
 from lift3d.viz.bench import plot_pareto, plot_scaling
 from lift3d.viz.html import write_html
-from lift3d.viz.palette import (
-    ClassInfo,
-    instance_color,
-    load_classes,
-    panoptic_color,
-    semantic_color,
-)
+from lift3d.viz.palette import instance_color, panoptic_color, semantic_color
 from lift3d.viz.points import as_geometry, plot_instances, save_turntable, save_views
 from lift3d.viz.run import plot_curves, plot_frame_grid, plot_run
 
 __all__ = [
-    "ClassInfo",
     "as_geometry",
     "instance_color",
-    "load_classes",
     "panoptic_color",
     "plot_curves",
     "plot_frame_grid",

@@ -30,7 +30,6 @@ Examples
 
 from __future__ import annotations
 
-import json
 import math
 from pathlib import Path
 from typing import Any, Sequence
@@ -38,6 +37,7 @@ from typing import Any, Sequence
 import numpy as np
 
 from lift3d.errors import InputError
+from lift3d.utils.files import read_json
 from lift3d.viz.run import _pyplot, save_figure
 
 __all__ = ["load_results", "plot_pareto", "plot_scaling", "pareto_front", "power_law_exponent"]
@@ -68,12 +68,7 @@ def load_results(results: dict | str | Path) -> tuple[dict, str]:
         if path.is_dir():
             path = path / "results.json"
         where = str(path)
-        if not path.is_file():
-            raise InputError(path, "benchmark results not found (run `lift3d bench` first)")
-        try:
-            results = json.loads(path.read_text(encoding="utf-8"))
-        except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
-            raise InputError(path, f"not a readable JSON file ({exc})") from exc
+        results = read_json(path, missing="benchmark results not found (run `lift3d bench` first)")
     if not isinstance(results, dict):
         raise InputError(where, "expected a JSON object with 'runs' and 'scaling'")
     return results, where

@@ -36,9 +36,10 @@ from typing import Any
 
 import numpy as np
 
+from lift3d.data.categories import as_class_table
 from lift3d.utils.atomic import write_text_atomic
 from lift3d.utils.geometry import vertex_normals
-from lift3d.viz.palette import INSTANCE_NONE, as_classes, instance_color, semantic_color, stuff_tint
+from lift3d.viz.palette import INSTANCE_NONE, instance_color, semantic_color, stuff_tint
 from lift3d.viz.points import _axis, _resolve_hidden, _with_files_beside, as_geometry
 
 #: Points embedded at most (a random subset beyond; about 16 bytes of page per point).
@@ -75,7 +76,7 @@ def write_html(points_or_path: Any, path: str | Path, *, classes: Any = None, up
     """
     geom = as_geometry(points_or_path)
     found = _with_files_beside(geom, {"classes": classes}).get("classes")
-    table = as_classes(found) if found is not None else []
+    table = as_class_table(found) if found is not None else []
     hidden = _resolve_hidden(hide, table)
     if hidden:
         geom = geom.subset(~np.isin(geom.semantic, list(hidden)))

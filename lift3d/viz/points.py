@@ -32,7 +32,6 @@ Examples
 
 from __future__ import annotations
 
-import json
 import math
 import os
 import sys
@@ -42,17 +41,16 @@ from typing import Any, Iterable, Mapping, Sequence
 
 import numpy as np
 
+from lift3d.data.categories import Category, as_class_table, read_class_table
 from lift3d.data.ply import read_labelled_ply
 from lift3d.errors import InputError
+from lift3d.export.api import instances
 from lift3d.utils.atomic import write_bytes_atomic
 from lift3d.viz.palette import (
     INSTANCE_NONE,
-    ClassInfo,
-    as_classes,
     classes_beside,
     color_to_float,
     instance_color,
-    load_classes,
     semantic_color,
     stuff_tint,
 )
@@ -264,49 +262,19 @@ _BOX_EDGES = [(k, k | (1 << a)) for k in range(8) for a in range(3) if not k & (
 
 
 def read_instance_boxes(path: str | Path) -> list[InstanceBox]:
-    """Boxes from ``instances.json`` of ``lift3d export``.
-
-    Each record needs ``id`` and either ``obb`` (``center``, ``rotation`` or ``R``, ``extent``) or ``aabb``
-    (``min``, ``max``); ``class_id`` / ``class_name`` are used when present. The file may be a list of
-    records or a dict with an ``instances`` list.
+    """Boxes of the instances in ``instances.json`` of ``lift3d export`` (read by
+    :func:`lift3d.export.api.instances`, which also says what a record needs), in id order.
 
     Raises
     ------
     InputError
         Missing file, bad JSON, or a record without a usable box.
     """
-    path = Path(path)
-    if not path.is_file():
-        raise InputError(path, "instances file not found")
-    try:
-        raw = json.loads(path.read_text(encoding="utf-8"))
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise InputError(path, f"not a readable JSON file ({exc})") from exc
-    records = raw.get("instances") if isinstance(raw, dict) else raw
-    if not isinstance(records, list):
-        raise InputError(path, "expected a list of instance records (or an 'instances' list)")
-    boxes = []
-    for k, rec in enumerate(records):
-        try:
-            obb = rec.get("obb")
-            if obb:
-                rot = obb.get("rotation", obb.get("R"))
-                center, rot, ext = (np.asarray(obb["center"], float), np.asarray(rot, float),
-                                    np.asarray(obb["extent"], float))
-            else:
-                lo, hi = np.asarray(rec["aabb"]["min"], float), np.asarray(rec["aabb"]["max"], float)
-                center, rot, ext = (lo + hi) / 2.0, np.eye(3), hi - lo
-            if center.shape != (3,) or rot.shape != (3, 3) or ext.shape != (3,):
-                raise ValueError("box has the wrong shape")
-            cid = int(rec.get("class_id", rec.get("semantic", 0)) or 0)
-            boxes.append(InstanceBox(int(rec["id"]), cid, str(rec.get("class_name", f"class_{cid}")),
-                                     center, rot, ext))
-        except (AttributeError, KeyError, TypeError, ValueError) as exc:
-            raise InputError(path, f"[{k}]: not an instance record with an obb or aabb ({exc})") from None
-    return boxes
+    return [InstanceBox(r.id, r.class_id, r.class_name, r.obb.center, r.obb.rotation, r.obb.extent)
+            for r in instances(path)]
 
 
-def instance_boxes(geom: LabelledGeometry, classes: Sequence[ClassInfo] = ()) -> list[InstanceBox]:
+def instance_boxes(geom: LabelledGeometry, classes: Sequence[Category] = ()) -> list[InstanceBox]:
     """Axis-aligned boxes of every instance id > 0, computed from the points (when no instances.json exists).
 
     The class of a box is the majority class of its points.
@@ -449,7 +417,7 @@ def auto_point_size(n_points: int, viewport_px: tuple[int, int]) -> float:
     return float(np.clip(round(1.6 * math.sqrt(area / max(n_points, 1))), 2, 12))
 
 
-def _resolve_hidden(hide: Iterable[str | int], classes: Sequence[ClassInfo], where: str = "--hide") -> set[int]:
+def _resolve_hidden(hide: Iterable[str | int], classes: Sequence[Category], where: str = "--hide") -> set[int]:
     """Class names or ids → ids. Unknown names are an error (a typo must not silently hide nothing)."""
     by_name = {c.name.lower(): c.id for c in classes}
     out = set()
@@ -555,7 +523,7 @@ class InstanceFigure:
         What is drawn (after ``hide``).
     """
 
-    def __init__(self, geom: LabelledGeometry, table: Sequence[ClassInfo], *, boxes: Sequence[InstanceBox] = (),
+    def __init__(self, geom: LabelledGeometry, table: Sequence[Category], *, boxes: Sequence[InstanceBox] = (),
                  window_size: tuple[int, int] = (1600, 800), point_size: float | None = None, up: str = "z",
                  legend: bool = True, title: str = "", cutaway: bool = True, off_screen: bool | None = True):
         import pyvista as pv
@@ -739,7 +707,7 @@ def _figure(points_or_path: Any, *, classes: Any = None, instances: Any = None, 
     _axis(up)  # validate before any work
     if classes is None and geom.source is not None:
         classes = classes_beside(geom.source)
-    table = as_classes(classes)
+    table = as_class_table(classes)
     hidden = _resolve_hidden(hide, table)
     if hidden:
         geom = geom.subset(~np.isin(geom.semantic, sorted(hidden)))
@@ -783,9 +751,9 @@ def _with_files_beside(geom: LabelledGeometry, plot_kwargs: dict) -> dict:
     kw = dict(plot_kwargs)
     if kw.get("classes") is None and geom.source is not None:
         found = classes_beside(geom.source)
-        kw["classes"] = load_classes(found) if found else None
+        kw["classes"] = read_class_table(found) if found else None
     elif isinstance(kw.get("classes"), (str, Path)):
-        kw["classes"] = load_classes(kw["classes"])
+        kw["classes"] = read_class_table(kw["classes"])
     if kw.get("boxes") and kw.get("instances") is None and geom.source is not None:
         beside = geom.source.with_name("instances.json")
         kw["instances"] = read_instance_boxes(beside) if beside.is_file() else None

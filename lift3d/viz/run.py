@@ -25,6 +25,7 @@ from typing import Any, Sequence
 
 import numpy as np
 
+from lift3d.data.categories import as_class_table
 from lift3d.data.scene import Scene
 from lift3d.errors import InputError
 from lift3d.eval.metrics import psnr
@@ -33,7 +34,7 @@ from lift3d.model.run_folder import RunFolder
 from lift3d.render.images import render_frame
 from lift3d.utils.atomic import write_bytes_atomic
 from lift3d.utils.progress import progress_bar
-from lift3d.viz.palette import as_classes, color_to_float, panoptic_color, semantic_color
+from lift3d.viz.palette import color_to_float, panoptic_color, semantic_color
 
 __all__ = ["FramePanels", "collect_frames", "pick_frames", "plot_frame_grid", "plot_curves", "plot_run",
            "training_series"]
@@ -182,7 +183,7 @@ def plot_frame_grid(panels: Sequence[FramePanels], classes: Any, path: str | Pat
     panels : sequence of FramePanels
         Rows, e.g. from :func:`collect_frames`.
     classes : class table
-        Anything :func:`~lift3d.viz.palette.as_classes` accepts (a scene's ``categories``, ``classes.json``).
+        Anything :func:`~lift3d.data.categories.as_class_table` accepts (a scene's ``categories``, ``classes.json``).
     path : str or Path
         PNG to write (atomically).
     title : str, optional
@@ -211,7 +212,7 @@ def plot_frame_grid(panels: Sequence[FramePanels], classes: Any, path: str | Pat
 
     if not panels:
         raise InputError("--frames", "no frames to show")
-    table = as_classes(classes)
+    table = as_class_table(classes)
     has_gt = any(p.gt is not None for p in panels)
     columns = ["photo", "rendered", "2D pseudo-label", "lifted panoptic"] + (["ground truth"] if has_gt else []) + [
         "depth"]

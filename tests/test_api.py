@@ -1,0 +1,118 @@
+"""The public API of a trained run (docs/api.md): lift3d.load_run, classes, query_points, render, render_rays.
+
+Runs on the session's tiny trained run (``tiny_run`` in conftest.py). docs/api.md's examples are doctests
+run here too.
+"""
+
+from __future__ import annotations
+
+import doctest
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import lift3d
+from lift3d.data.images import read_label_map, read_rgb
+from lift3d.errors import InputError
+from lift3d.export import export_run
+from lift3d.model import run as run_module
+from lift3d.render.output import DEPTH_PNG_UNIT, render_to_folder
+
+ROOT = Path(__file__).resolve().parent.parent
+
+
+@pytest.fixture(scope="module")
+def run(tiny_run):
+    return lift3d.load_run(tiny_run, device="cpu")
+
+
+def test_the_docs_examples_run(tiny_run):
+    result = doctest.testfile(str(ROOT / "docs" / "api.md"), module_relative=False, globs={"run_dir": str(tiny_run)},
+                              optionflags=doctest.ELLIPSIS | doctest.NORMALIZE_WHITESPACE, verbose=False)
+    assert result.attempted > 10 and result.failed == 0
+
+
+def test_one_loader(run, tiny_run):
+    assert lift3d.load_run is run_module.load_run
+    assert run.step == 15 and str(run.run.path) == str(tiny_run)
+    assert set(run.classes) == set(run.labels.semantic_ids)
+    scene_names = {c.id: c.name for c in run.scene().categories}
+    assert all(c.name == scene_names[c.id] for c in run.classes.values())
+
+
+def test_classes_without_the_scene_folder(run, monkeypatch):
+    """Names come from the categories recorded at training; older runs without them fall back to the scene
+    folder and, when that is gone too, to class_<id>."""
+    monkeypatch.setitem(run.cfg.scene, "data", "/nonexistent/scene")
+    assert run.classes[1].name == "wall"
+    monkeypatch.delitem(run.cfg.scene, "categories")
+    assert run.classes[1].name == "class_1" and len(run.classes[1].color) == 3
+
+
+def test_render_equals_lift3d_render(run, tiny_run, tmp_path):
+    res = render_to_folder(tiny_run, tmp_path, ["rgb", "depth", "semantic", "instance"], split="test",
+                           previews=False, progress=False, device="cpu")
+    scene = run.scene()
+    cams = scene.cameras
+    i = int(scene.split("test")[0])
+    stem = res.stems[0]
+    assert stem == scene.frames[i].name
+    out = run.render(cams.c2w[i], cams.K(i), int(cams.width[i]), int(cams.height[i]))
+    assert np.array_equal(read_rgb(tmp_path / "rgb" / f"{stem}.png"),
+                          np.round(np.clip(out["rgb"], 0, 1) * 255).astype(np.uint8))
+    depth_mm = np.where(out["depth"] > 0, np.round(out["depth"] / DEPTH_PNG_UNIT), 0)
+    assert np.array_equal(read_label_map(tmp_path / "depth" / f"{stem}.png"), depth_mm)
+    assert np.array_equal(read_label_map(tmp_path / "semantic" / f"{stem}.png"), out["semantic"])
+    instance = np.where(out["semantic"] > 0, out["instance"], 0)
+    assert np.array_equal(read_label_map(tmp_path / "instance" / f"{stem}.png"), instance)
+
+
+def test_render_rays_agree_with_render_and_chunks_change_nothing(run):
+    scene = run.scene()
+    cams = scene.cameras
+    i = int(scene.split("test")[0])
+    out = run.render(cams.c2w[i], cams.K(i), int(cams.width[i]), int(cams.height[i]))
+    vv, uu = np.mgrid[0:out["depth"].shape[0], 0:out["depth"].shape[1]]
+    u, v = uu.ravel(), vv.ravel()
+    o, d = cams.rays(i, u, v)
+    r = run.render_rays(o, d * 3.0)  # directions need not be unit length
+    assert np.array_equal(r["semantic"], out["semantic"][v, u]) and np.array_equal(r["instance"], out["instance"][v, u])
+    assert np.allclose(r["rgb"], out["rgb"][v, u], atol=1e-5)
+    x, y = cams.normalized_coords(i, u.astype(float), v.astype(float))
+    cos = 1.0 / np.sqrt(x * x + y * y + 1.0)
+    hit = out["depth"][v, u] > 0
+    assert hit.any() and np.allclose(r["depth"][hit] * cos[hit], out["depth"][v, u][hit], rtol=1e-4)
+    small = run.render_rays(o, d, chunk_size=7)
+    assert all(np.allclose(small[k], r[k], atol=1e-5) for k in r) and np.array_equal(small["semantic"], r["semantic"])
+    pts = o[:50] + d[:50] * 0.5
+    a, b = run.query_points(pts), run.query_points(pts, chunk=7)  # (batched matmuls round differently)
+    assert np.array_equal(a["semantic"], b["semantic"]) and np.array_equal(a["instance"], b["instance"])
+    assert all(np.allclose(a[k], b[k], rtol=1e-4, atol=1e-5) for k in ("density", "confidence", "semantic_probs"))
+
+
+def test_query_points_at_exported_points_give_the_exported_labels(run, tiny_run, tmp_path):
+    export_run(tiny_run, tmp_path, pointcloud=True, num_points=3000, device="cpu")
+    pts = lift3d.load_labelled_points(tmp_path)
+    q = run.query_points(pts.xyz)
+    assert np.array_equal(q["semantic"], pts.semantic)
+    things = [c.id for c in run.classes.values() if c.isthing]
+    assert (q["instance"][~np.isin(q["semantic"], things)] == 0).all()
+    # Every exported instance is one (class, channel) of the field; a channel may hold several instances.
+    ids = np.unique(pts.instance[pts.instance > 0])
+    assert len(ids) > 0
+    for k in ids:
+        members = pts.instance == k
+        assert len(np.unique(q["instance"][members])) == 1 and len(np.unique(q["semantic"][members])) == 1
+    assert (q["instance"][pts.instance > 0] > 0).all() and (pts.instance[q["instance"] == 0] == 0).all()
+
+
+def test_bad_input_is_a_value_error_naming_the_argument(run):
+    with pytest.raises(InputError, match="xyz: expected an \\(N, 3\\) array"):
+        run.query_points(np.zeros((4, 2)))
+    with pytest.raises(ValueError, match="directions must be non-zero"):
+        run.render_rays(np.zeros((2, 3)), np.zeros((2, 3)))
+    with pytest.raises(ValueError, match="c2w must be 4x4"):
+        run.render(np.eye(3), np.eye(3), 8, 8)
+    with pytest.raises(InputError, match="run folder not found"):
+        lift3d.load_run("/nonexistent/run")
