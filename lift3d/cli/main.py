@@ -1,9 +1,9 @@
 """``lift3d <verb>``: one entry point, a module per verb (``lift3d/cli/<verb>.py`` with ``add_parser``).
 
 Verb modules import their implementation inside ``run`` so that ``lift3d --help`` stays cheap. A verb whose
-parser itself is expensive to build (``train``: its flags come from the torch-backed run configuration) sets
-a module constant ``HELP`` (its one-line help); the parser then lists it without building it unless that
-verb is the one being run.
+parser itself is expensive to build (``train``: its flags come from the torch-backed run configuration;
+``synth``: its choices from the scene generator) sets a module constant ``HELP`` (its one-line help); the
+parser then lists it without building it unless that verb is the one being run.
 
 Bad input (:class:`~lift3d.errors.Lift3DError`) is printed as one line with exit code 2; ``--debug`` shows the
 traceback instead.

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import argparse
 
+HELP = "write a synthetic labelled scene with simulated 2D segmenter noise"
+
 DESCRIPTION = """\
 Write a synthetic scene folder (docs/scene-format.md): posed images, GT panoptic maps, exact depth and 3D
 points, the 2D panoptic pseudo-labels of a simulated noisy segmenter (per-frame ids, missed/merged/split
@@ -24,13 +26,14 @@ def _pose_noise(text: str) -> float:
 
 def add_parser(subparsers, verb: str) -> argparse.ArgumentParser:
     """Register ``lift3d synth`` on the CLI's subparsers."""
-    # here, not at module level: keeps `lift3d --help` cheap
+    # The choices come from lift3d.synth (scipy, Open3D): here, not at module level, and built only when
+    # this verb runs (HELP, see lift3d.cli.main), so that `lift3d --help` stays cheap.
     from lift3d.synth.make import CAMERA_PATHS, KINDS
     from lift3d.synth.noise import PRESETS
     from lift3d.synth.sensors import DEPTH_MODES
 
     p = subparsers.add_parser(
-        verb, help="write a synthetic labelled scene with simulated 2D segmenter noise",
+        verb, help=HELP,
         description=DESCRIPTION, formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     p.add_argument("--out", required=True, metavar="DIR", help="output scene folder (created)")

@@ -33,7 +33,6 @@ and, per frame, ``"mvs_depth_file_path"`` / ``"mvs_sigma_file_path"`` for the de
 from __future__ import annotations
 
 import io
-import json
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable, Sequence
@@ -44,6 +43,7 @@ from plyfile import PlyData, PlyElement
 from lift3d.data.images import write_depth
 from lift3d.errors import InputError
 from lift3d.utils.atomic import write_bytes_atomic, write_json_atomic
+from lift3d.utils.files import read_json
 
 POINTS_FILE = "sparse/points3D.ply"
 OBSERVATIONS_FILE = "sparse/observations.npz"
@@ -190,12 +190,7 @@ def write_sparse_points(root: str | Path, sparse: SparsePoints) -> dict:
 def update_transforms(root: str | Path, change: Callable[[dict], Any]) -> None:
     """Read ``transforms.json``, apply ``change(meta)`` in place, write it back atomically."""
     path = Path(root) / "transforms.json"
-    try:
-        meta = json.loads(path.read_text(encoding="utf-8"))
-    except FileNotFoundError:
-        raise InputError(path, "file not found") from None
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
-        raise InputError(path, f"cannot be read ({exc})") from exc
+    meta = read_json(path)
     if not isinstance(meta, dict):
         raise InputError(path, "must hold a JSON object")
     change(meta)
