@@ -73,6 +73,12 @@ def test_old_flat_field_layout_still_loads():
     assert config_from_dict(cfg.to_dict()) == cfg
 
 
+def test_old_flat_field_flags_still_apply():
+    """Scripts that pass the old flat flags (--field.grid-resolution-cap 16) keep working."""
+    cfg = load_config("fast", overrides={"field": {"grid_resolution_cap": 16, "mlp_width": 32}})
+    assert (cfg.field.grid.resolution_cap, cfg.field.mlp.width) == (16, 32)
+
+
 def _sections(obj, path):
     """(dotted path, dataclass) of a config section and every section nested in it."""
     yield path, obj

@@ -248,7 +248,8 @@ def load_config(preset: str = "fast", kind: str | None = None, overrides: dict |
         kpath = preset_path(kind)
         cfg = update_dataclass(cfg, upgrade_config_dict(load_yaml(kpath)), str(kpath))
     if overrides:
-        cfg = update_dataclass(cfg, overrides, "command line")
+        # old flat flags (--field.grid-resolution-cap) still work, as old config.yml files do
+        cfg = update_dataclass(cfg, upgrade_config_dict(overrides), "command line")
     kind_from_flags = bool(overrides) and "kind" in (overrides.get("field") or {})
     return check_config(cfg, "command line" if kind_from_flags else str(path))
 
