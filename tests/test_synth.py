@@ -387,7 +387,7 @@ def test_auto_camera_path_follows_the_seed(tmp_path):
     for seed in range(6):
         rep = make_scene(tmp_path / f"s{seed}", seed=seed, n_views=2, width=16, height=16, progress=False)
         picked.add(rep["options"]["camera_path"])
-        again = make_scene(tmp_path / f"e{seed}", seed=seed, n_views=2, width=16, height=16, progress=False,
+        make_scene(tmp_path / f"e{seed}", seed=seed, n_views=2, width=16, height=16, progress=False,
                            camera_path=rep["options"]["camera_path"])
         a, b = (_files(tmp_path / f"{k}{seed}")["images/frame_0001.png"] for k in "se")
         assert a == b

@@ -111,7 +111,7 @@ def fractions(err: np.ndarray, diag: float) -> dict[str, float]:
 def sparse_metrics(scene: Scene, sp, surface: Surface, diag: float) -> dict:
     names = [f.name for f in scene.frames]
     dist = surface.distance(sp.xyz)
-    dz, ok_all, sig, cls_obs = [], [], [], []
+    dz, ok_all, sig = [], [], []
     groups = class_groups(scene)
     pix_per_group = {g: 0 for g in groups}
     obs_per_group = {g: 0 for g in groups}

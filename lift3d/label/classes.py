@@ -34,9 +34,12 @@ from __future__ import annotations
 import difflib
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Iterable, Mapping, Sequence
+from typing import TYPE_CHECKING, Any, Iterable, Mapping, Sequence
 
 import numpy as np
+
+if TYPE_CHECKING:  # annotations only: the class tables must not need torch
+    import torch
 
 from lift3d.convert.predictions import parse_categories
 from lift3d.data.categories import Category
@@ -370,7 +373,7 @@ class ClassMapping:
         m[np.arange(len(self.sources)), cols] = 1.0
         return m
 
-    def map_probabilities(self, probs: "torch.Tensor") -> "torch.Tensor":
+    def map_probabilities(self, probs: torch.Tensor) -> torch.Tensor:
         """Source class probabilities → target probabilities.
 
         Parameters

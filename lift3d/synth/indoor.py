@@ -629,7 +629,7 @@ def build_indoor(rng: np.random.Generator) -> SceneContent:
         centre, yaw = placed
         circles.append((centre, built.radius))
         used += np.pi * built.radius**2
-        obj = add(name, built, np.array([centre[0], centre[1], 0.0]), yaw, 0)
+        add(name, built, np.array([centre[0], centre[1], 0.0]), yaw, 0)
         if name == "table":
             tables.append((centre, built.radius))
         if built.top is not None:
