@@ -205,7 +205,7 @@ class DenseGrid(nn.Module):
             dev = table.device
             for stride in (1, r, r * r):
                 n = min(num_samples, r**3)
-                base = torch.randint(0, r**3, (n,), generator=generator).to(dev)
+                base = torch.randint(0, r**3, (n,), generator=generator, device=dev)
                 # Keep neighbours inside the grid along this axis.
                 coord = (base // stride) % r
                 base = torch.where(coord == r - 1, base - stride, base)

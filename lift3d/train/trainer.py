@@ -162,7 +162,9 @@ class Trainer:
             betas=(0.9, 0.99),
             fused=fused,
         )
-        self.generator = torch.Generator().manual_seed(cfg.trainer.seed + 1000003 * self.ctx.rank)
+        # Every random draw of training (batches, jitter, background, L_tv) comes from this generator; it lives
+        # on the training device because torch.rand(..., device=cuda, generator=<cpu generator>) is an error.
+        self.generator = torch.Generator(device=device).manual_seed(cfg.trainer.seed + 1000003 * self.ctx.rank)
         self.step = 0
         self.train_seconds = 0.0  # training time before this process (resumed runs)
         self._fit_start: float | None = None
@@ -187,7 +189,8 @@ class Trainer:
             "config": self.cfg.to_dict(),
             "labels": self.data.labels.to_dict(),
             "normalization": self.norm.to_json(),
-            "rng": {"torch": self.generator.get_state(), "cpu": torch.get_rng_state()},
+            "rng": {"torch": self.generator.get_state(), "cpu": torch.get_rng_state(),
+                    "device": self.generator.device.type},
             "lift3d_version": __version__,
         }
 
@@ -210,8 +213,11 @@ class Trainer:
         self.step = int(state["step"])
         self.train_seconds = float(state.get("train_seconds", 0.0))
         if "rng" in state:
-            self.generator.set_state(state["rng"]["torch"])
-            torch.set_rng_state(state["rng"]["cpu"])
+            # A generator's state only fits a generator of the same device type (a run trained on the CPU and
+            # resumed on a GPU keeps the freshly seeded stream).
+            if state["rng"].get("device", "cpu") == self.generator.device.type:
+                self.generator.set_state(state["rng"]["torch"].cpu())
+            torch.set_rng_state(state["rng"]["cpu"].cpu())
 
     # ---------------------------------------------------------------- one step
     def losses(self, batch) -> tuple[dict[str, torch.Tensor], RenderOutputs]:
