@@ -40,7 +40,7 @@ from lift3d import __version__
 from lift3d.errors import InputError
 from lift3d.synth import make_scene
 from lift3d.utils.atomic import write_json_atomic, write_text_atomic
-from lift3d.utils.device import available_cpus
+from lift3d.utils.device import available_cpus, default_threads
 from lift3d.utils.progress import progress_bar
 from lift3d.viz.bench import plot_pareto, plot_scaling
 
@@ -112,7 +112,7 @@ def machine_info() -> dict:
         "cpu": cpu,
         "cpus_available": available_cpus(),
         "torch": torch.__version__,
-        "torch_threads": int(os.environ.get("LIFT3D_THREADS", 0)) or available_cpus(),
+        "torch_threads": default_threads(),
         "cuda": torch.cuda.get_device_name(0) if torch.cuda.is_available() else None,
         "python": platform.python_version(),
         "lift3d": __version__,

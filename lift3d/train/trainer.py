@@ -41,6 +41,7 @@ from lift3d.train.data import TrainingData
 from lift3d.train.distributed import DistContext, all_ranks_agree, broadcast_object, init_distributed, shutdown
 from lift3d.train.observed import observed_cells
 from lift3d.utils.device import available_cpus, resolve_device, set_threads
+from lift3d.utils.threads import threads_from_environment
 from lift3d.utils.memory import peak_rss_mb
 from lift3d.utils.progress import progress_bar
 
@@ -431,8 +432,9 @@ def _train(data, preset, output_dir, overrides, resume, progress, print_summary,
         run = RunFolder(Path(broadcast_object(str(run_path) if run_path else None, ctx)))
     if ctx.enabled:
         cfg.trainer.device = device_name
-    # Ranks sharing a machine split its CPUs, unless the user chose (trainer.threads or LIFT3D_THREADS).
-    share = ctx.enabled and not os.environ.get("LIFT3D_THREADS")
+    # Ranks sharing a machine split its CPUs, unless the user chose (trainer.threads, LIFT3D_THREADS or
+    # OMP_NUM_THREADS).
+    share = ctx.enabled and threads_from_environment() is None
     set_threads(cfg.trainer.threads or (max(1, _cpu_share(ctx)) if share else None))
     seed_everything(cfg.trainer.seed)
     device = resolve_device(device_name if ctx.enabled else cfg.trainer.device)
