@@ -20,9 +20,10 @@ from lift3d.model.run import load_run
 from lift3d.train.trainer import Trainer, train
 
 # A few steps through every code path that draws random numbers: batches with patches, jittered samples,
-# random backgrounds, L_tv and proposal resampling.
+# random backgrounds, L_tv, proposal resampling and occupancy-grid updates.
 SHORT = {
-    "field": {"grid": {"resolution_cap": 16, "min_resolution": 8, "head_hidden_dim": 16}},
+    "field": {"grid": {"resolution_cap": 16, "min_resolution": 8, "head_hidden_dim": 16},
+              "occupancy": {"resolution": 8, "start": 2, "update_every": 2}},
     "sampling": {"proposal_resolutions": [12], "proposal_samples": [16], "num_samples": 8},
     "data": {"images_per_batch": 2, "rays_per_image": 32, "patch_size": 4},
     "optim": {"steps": 6, "warmup_steps": 2},

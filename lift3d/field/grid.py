@@ -144,8 +144,8 @@ class GridField(Field):
             return
         self.grid.active_levels = int(min(levels, 1 + math.floor(progress / frac * (levels - 1))))
 
-    def geometry(self, x: Tensor) -> tuple[Tensor, Tensor, Tensor]:
-        u, valid = self.space(x)
+    def geometry(self, x: Tensor, space: tuple[Tensor, Tensor] | None = None) -> tuple[Tensor, Tensor, Tensor]:
+        u, valid = self.space(x) if space is None else space
         feats = self.grid(u)
         h = torch.cat([feats, positional_encoding(u * 2 - 1, self.cfg.grid.position_frequencies)], dim=-1)
         out = self.density_mlp(h)

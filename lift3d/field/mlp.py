@@ -65,8 +65,8 @@ class MLPField(Field):
     def has_instances(self) -> bool:
         return self.instance_mlp is not None
 
-    def geometry(self, x: Tensor) -> tuple[Tensor, Tensor, Tensor]:
-        u, valid = self.space(x)
+    def geometry(self, x: Tensor, space: tuple[Tensor, Tensor] | None = None) -> tuple[Tensor, Tensor, Tensor]:
+        u, valid = self.space(x) if space is None else space
         h = F.relu(self.trunk(positional_encoding(u * 2 - 1, self.cfg.mlp.frequencies)))
         out = self.sigma_out(h)
         sigma = density_activation(out[:, 0] + self.cfg.density_bias) * valid

@@ -243,6 +243,10 @@ class Trainer:
     def train_step(self) -> dict[str, float] | None:
         """One optimisation step; None when the loss was not finite (the step is skipped)."""
         d = self.cfg.data
+        occ = self.cfg.field.occupancy
+        if occ.resolution > 0 and self.step >= occ.start and (self.step - occ.start) % max(1, occ.update_every) == 0:
+            with record_function("step.occupancy"):
+                self.update_occupancy()
         # record_function labels name the phases in `lift3d bench`'s profile (no cost without a profiler).
         with record_function("step.sample_batch"):
             batch = self.data.sample(self.images_per_rank, d.rays_per_image, d.patch_size, self.generator)
@@ -270,6 +274,13 @@ class Trainer:
         logged = {k: float(v.detach()) for k, v in terms.items()}
         logged["psnr"] = psnr(out.rgb.detach().cpu().numpy(), batch.rgb.cpu().numpy())
         return logged
+
+    def update_occupancy(self) -> None:
+        """One update of the model's occupancy grid. Where in each cell the density is measured follows from
+        the seed and the step alone, so every rank of a distributed run keeps the same grid and a resumed
+        run the same sequence."""
+        gen = torch.Generator(device=self.device).manual_seed(self.cfg.trainer.seed * 1_000_003 + self.step)
+        self.model.update_occupancy(gen)
 
     # ---------------------------------------------------------------- evaluation
     def as_loaded_run(self) -> LoadedRun:
@@ -344,6 +355,8 @@ class Trainer:
         ev: dict[str, Any] = {}
         if self.ctx.enabled:
             summary["replicas_identical"] = self.replicas_identical()
+        if self.cfg.field.occupancy.resolution > 0:
+            self.update_occupancy()  # the final checkpoint's grid measures the final field
         if self.ctx.is_main:
             self.save_checkpoint()
             ev = self.evaluate()
