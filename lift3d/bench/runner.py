@@ -38,6 +38,7 @@ import torch
 
 from lift3d import __version__
 from lift3d.errors import InputError
+from lift3d.field import native
 from lift3d.synth import make_scene
 from lift3d.utils.atomic import write_json_atomic, write_text_atomic
 from lift3d.utils.device import available_cpus, default_threads
@@ -99,7 +100,8 @@ class BenchConfig:
 
 
 def machine_info() -> dict:
-    """CPU model, cores available, torch and thread count: printed with every table."""
+    """CPU model, cores available, torch, thread count, OpenMP wait policy and whether the C++ kernels are in
+    use (lift3d.field.native): printed with every table, so that timings are compared like for like."""
     cpu = platform.processor() or platform.machine()
     try:
         for line in Path("/proc/cpuinfo").read_text().splitlines():
@@ -113,6 +115,8 @@ def machine_info() -> dict:
         "cpus_available": available_cpus(),
         "torch": torch.__version__,
         "torch_threads": default_threads(),
+        "omp_wait_policy": os.environ.get("OMP_WAIT_POLICY"),
+        "native_kernels": native.load() is not None,
         "cuda": torch.cuda.get_device_name(0) if torch.cuda.is_available() else None,
         "python": platform.python_version(),
         "lift3d": __version__,

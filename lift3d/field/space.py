@@ -5,6 +5,7 @@ from __future__ import annotations
 import torch
 from torch import Tensor, nn
 
+from lift3d.field import native
 from lift3d.field.encodings import contract, uncontract
 from lift3d.field.occupancy import OccupancyGrid
 
@@ -28,6 +29,9 @@ class SceneSpace(nn.Module):
         self.occupancy = OccupancyGrid(contraction)
         self.occupancy_in_training = False
 
+    #: Contraction codes of the C++ kernels (lift3d/field/csrc/native.cpp).
+    CONTRACTION_CODES = {"none": 0, "linf": 1, "l2": 2}
+
     def masks(self) -> tuple[Tensor, Tensor]:
         """The lattices that zero density now: ``observed`` and the occupancy grid's ``occupied`` (an empty
         tensor when it does not apply, e.g. in training without ``occupancy_in_training``)."""
@@ -37,6 +41,18 @@ class SceneSpace(nn.Module):
 
     def forward(self, x: Tensor) -> tuple[Tensor, Tensor]:
         """``x``: ``[N, 3]`` → ``u`` ``[N, 3]`` in ``[0, 1]``, ``valid`` ``[N]`` bool."""
+        ext = native.usable(x)
+        if ext is not None and x.dim() == 2:
+            observed, occupied = self.masks()
+            x = x.detach().contiguous()
+            u = torch.empty_like(x)
+            valid = torch.empty(x.shape[0], dtype=torch.bool)
+            ext.space_forward(x, self.CONTRACTION_CODES[self.contraction], self.extent, observed, occupied, u, valid)
+            return u, valid
+        return self.forward_torch(x)
+
+    def forward_torch(self, x: Tensor) -> tuple[Tensor, Tensor]:
+        """The pure-torch :meth:`forward` (the reference for the C++ path)."""
         c = contract(x, self.contraction)
         u = (c / self.extent + 1.0) * 0.5
         if self.contraction == "none":

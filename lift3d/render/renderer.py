@@ -21,7 +21,9 @@ import torch
 from torch import Tensor, nn
 from torch.profiler import record_function
 
+from lift3d.field import native
 from lift3d.field.base import Field
+from lift3d.field.layers import ProposalGrid
 from lift3d.render.samplers import interlevel_loss, ray_aabb, sample_pdf, spacing_fn, spacing_fn_inv, uniform_edges
 from lift3d.render.volume import interval_midpoints, render_weights
 from lift3d.utils.progress import progress_bar
@@ -160,7 +162,13 @@ def render_rays(
     if len(proposals):
         s_edges = uniform_edges(near, far, cfg.proposal_samples[0], spacing, training, generator)
         with record_function("render.proposal"):
-            for level, prop in enumerate(proposals):
+            ext = None
+            if not (training or torch.is_grad_enabled() or proposal_anneal < 1.0) and \
+                    all(_is_plain_proposal(p) for p in proposals):
+                ext = native.usable(origins, dirs, s_edges)
+            if ext is not None:
+                s_edges = _proposals_native(ext, field, proposals, origins, dirs, s_edges, cfg, spacing)
+            for level, prop in enumerate(proposals if ext is None else ()):
                 x, _, deltas = points(s_edges)
                 u, valid = space(x)
                 sigma = prop(u, valid).view(n_rays, -1)
@@ -238,6 +246,29 @@ def render_rays(
     s_unit = (s_edges - s_near) / (s_far - s_near).clamp_min(1e-9)
     return RenderOutputs(rgb=rgb, depth=depth, opacity=opacity, semantic=semantic, instance=instance,
                          weights=weights, t_mid=t_mid, s_edges=s_unit, distill=distill)
+
+
+def _is_plain_proposal(prop: nn.Module) -> bool:
+    """A :class:`ProposalGrid` of one 1-channel level (what the C++ proposal pass handles)."""
+    return isinstance(prop, ProposalGrid) and len(prop.grid.resolutions) == 1 and prop.grid.channels == 1
+
+
+def _proposals_native(ext, field: Field, proposals: nn.ModuleList, origins: Tensor, dirs: Tensor, s_edges: Tensor,
+                      cfg: SamplingConfig, spacing: str) -> Tensor:
+    """Every proposal level without gradients in one C++ pass per level (lift3d.field.native): the same
+    densities, weights and deterministic resampling as the torch loop of :func:`render_rays`."""
+    space = field.space
+    observed, occupied = space.masks()
+    origins, dirs = origins.contiguous(), dirs.contiguous()
+    for level, prop in enumerate(proposals):
+        n_next = cfg.proposal_samples[level + 1] if level + 1 < len(proposals) else cfg.num_samples
+        grid = prop.grid
+        new = s_edges.new_empty(s_edges.shape[0], n_next + 1)
+        ext.proposal_resample(origins, dirs, s_edges.contiguous(), spacing == "lindisp", grid.tables[0].detach(),
+                              grid.resolutions[0], float(prop.density_bias), space.CONTRACTION_CODES[space.contraction],
+                              space.extent, observed, occupied, 0.01, new)
+        s_edges = new
+    return s_edges
 
 
 def geometry_where_needed(field: Field, x: Tensor, u: Tensor, valid: Tensor, deltas: Tensor, eps: float,
