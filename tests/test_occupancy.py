@@ -170,3 +170,16 @@ def test_the_grid_is_in_the_checkpoint_and_old_checkpoints_still_load(run_path, 
     assert (rebuilt.occupied == occupied).float().mean() > 0.9
     out = old.render_rays(np.zeros((4, 3), np.float32), np.eye(3, dtype=np.float32)[[0, 1, 2, 0]])
     assert np.isfinite(out["rgb"]).all()
+
+
+def test_in_training_the_grid_zeroes_density_only_when_asked():
+    """The grid always applies when rendering; in training only with field.occupancy.in_training (fog control)."""
+    space = SceneSpace("none")
+    space.occupancy.update(lambda x: (x[:, 0] > 0.5).float() * 100.0, resolution=8, threshold=0.01)
+    x = torch.tensor([[-0.5, 0.0, 0.0], [0.8, 0.0, 0.0]])
+    assert space.train()(x)[1].tolist() == [True, True]
+    space.occupancy_in_training = True
+    assert space(x)[1].tolist() == [False, True]
+    space.occupancy_in_training = False
+    assert space.eval()(x)[1].tolist() == [False, True]
+    assert space.forward_torch(x)[1].tolist() == [False, True]
