@@ -185,11 +185,12 @@ class OccupancyGrid(nn.Module):
             full = prefix + key
             if full in state_dict:
                 value = state_dict[full]
-                setattr(self, key, value.to(torch.bool if key == "occupied" else torch.float32).clone())
+                # On this module's device (the checkpoint may have been mapped elsewhere), as a copy.
+                setattr(self, key, value.to(device=empty.device, dtype=torch.bool if key == "occupied"
+                                            else torch.float32, copy=True))
             else:
                 state_dict[full] = empty
         super()._load_from_state_dict(state_dict, prefix, *args, **kwargs)
-
 
 
 @dataclass
