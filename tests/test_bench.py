@@ -88,3 +88,19 @@ def test_reevaluate_names_a_cached_run_whose_folder_is_gone(tmp_path, capfd, mon
     err = capfd.readouterr().err.strip().splitlines()
     assert rc == 2 and len(err) == 1 and "run_indoor_fast_s0.json" in err[0] and "is gone" in err[0], err
     assert json.loads(cached.read_text())["run"] == str(tmp_path / "gone")  # the cache is left as it was
+
+
+def test_under_load_measures_step_and_render_alone_and_beside_a_busy_neighbour(tmp_path):
+    from lift3d.bench.runner import _QUICK_TRAIN, under_load_markdown
+    from lift3d.bench.worker import run_under_load
+    from lift3d.synth import make_scene
+
+    scene = tmp_path / "room"
+    make_scene(scene, kind="indoor", seed=105, noise="moderate", n_views=6, width=32, height=32, progress=False)
+    res = run_under_load({"scene": str(scene), "preset": "fast", "overrides": _QUICK_TRAIN,
+                          "output_dir": str(tmp_path / "runs"), "warmup": 1, "steps": 1, "repeats": 1, "rounds": 1,
+                          "settle_seconds": 0.1})
+    for key in ("step_ms", "render_ms", "loaded_step_ms", "loaded_render_ms", "step_slowdown", "render_slowdown"):
+        assert res[key] > 0, key  # numbers only: no timing is asserted
+    text = "\n".join(under_load_markdown(res))
+    assert "## Under load" in text and "slowdown" in text

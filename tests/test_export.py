@@ -67,7 +67,7 @@ def analytic_model():
     field = model.field
     geo_dim = model.cfg.field.geo_feat_dim
 
-    def geometry(x):
+    def geometry(x, space=None):
         sigma = PEAK_DENSITY * ((_inside_distance(x) / RAMP) + 0.5).clamp(0.0, 1.0)
         inside_box = (x.abs() <= 1.0).all(-1)
         return sigma * inside_box, torch.zeros(len(x), geo_dim), ((x + 1) / 2).clamp(0, 1)
@@ -163,7 +163,7 @@ def test_a_sheet_thinner_than_the_coarse_lattice_is_still_contoured(monkeypatch)
     monkeypatch.setattr(type(model.field), "finest_resolution", property(lambda f: 128))  # claims 128³ detail
     x0 = 0.5 + 1.0 / 64  # halfway between two coarse nodes at 64³ (spacing 2/64)
 
-    def geometry(x):
+    def geometry(x, space=None):
         sigma = torch.where((x[:, 0] - x0).abs() < 0.4 / 64, 500.0, 0.0)
         return sigma, torch.zeros(len(x), model.cfg.field.geo_feat_dim), ((x + 1) / 2).clamp(0, 1)
 
@@ -193,7 +193,7 @@ def test_refinement_moves_vertices_onto_the_rendered_surface():
     r0, width, peak, tau = 0.5, 0.05, 100.0, 10.0
     model = _tiny_model()
 
-    def geometry(x):
+    def geometry(x, space=None):
         s = r0 - x.norm(dim=-1)
         return peak * (s / width).clamp(0.0, 1.0), torch.zeros(len(x), model.cfg.field.geo_feat_dim), \
             ((x + 1) / 2).clamp(0, 1)
@@ -223,7 +223,7 @@ def test_refinement_leaves_crevice_vertices_alone():
     model = _tiny_model()
     voxel = 2.0 / 64
 
-    def geometry(x):
+    def geometry(x, space=None):
         gap = (x[:, 0].abs() < 0.5 * voxel)
         slab = (x[:, 0].abs() < 0.4) & ~gap & (x[:, 1].abs() < 0.6) & (x[:, 2].abs() < 0.6)
         return torch.where(slab, 1000.0, 0.0), torch.zeros(len(x), model.cfg.field.geo_feat_dim), \
@@ -272,7 +272,7 @@ def test_unbounded_scene_is_contoured_in_contracted_space_and_cropped(tmp_path):
     model.bounded = False
     geo_dim = model.cfg.field.geo_feat_dim
 
-    def geometry(x):
+    def geometry(x, space=None):
         inside = torch.stack([r - (x - torch.as_tensor(c, dtype=x.dtype)).norm(dim=-1) for c, r in balls]).amax(0)
         sigma = PEAK_DENSITY * (inside / (RAMP * (1 + x.norm(dim=-1))) + 0.5).clamp(0.0, 1.0)
         return sigma, torch.zeros(len(x), geo_dim), torch.rand(len(x), 3)

@@ -294,7 +294,7 @@ def test_depth_guided_samples_put_weight_where_the_training_depth_says():
             super().__init__()
             self.space = type("S", (), {"__call__": lambda self, x: (x, torch.ones(len(x), dtype=torch.bool))})()
 
-        def geometry(self, x):
+        def geometry(self, x, space=None):
             sigma = torch.where((x[:, 0] - 0.6).abs() < 0.01, 1e4, 0.0)
             return sigma, torch.zeros(len(x), 4), x
 

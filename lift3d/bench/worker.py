@@ -11,6 +11,9 @@
 * ``{"kind": "profile", "scene": DIR, "preset": NAME, "steps": N, "repeats": N}``: where the time of one
   training step and of one 2048-ray render goes (``torch.profiler``: the named stages and the operators with
   the most self time), next to the unprofiled medians.
+* ``{"kind": "under_load", "scene": DIR, "preset": NAME, "steps": N, "repeats": N, "rounds": N}``: training
+  step and 2048-ray render alone and beside one busy 2-thread process (:data:`BUSY_NEIGHBOUR`), in
+  interleaved rounds; medians and the slowdown.
 
 The result is written atomically to OUT.json; the benchmark skips specs whose result already exists.
 """
@@ -18,6 +21,8 @@ The result is written atomically to OUT.json; the benchmark skips specs whose re
 from __future__ import annotations
 
 import json
+import os
+import subprocess
 import sys
 import time
 from pathlib import Path
@@ -161,6 +166,53 @@ def run_profile(spec: dict) -> dict:
     }
 
 
+#: The neighbour of the "under load" measurement: a process keeping 2 OpenMP threads busy with matrix
+#: products (as another training would), with OpenMP's default wait policy (it is not lift3d).
+BUSY_NEIGHBOUR = ("import torch\ntorch.set_num_threads(2)\na = torch.randn(384, 384)\n"
+                  "while True:\n    a = torch.tanh(a @ a)\n")
+
+
+def _busy_neighbour() -> subprocess.Popen:
+    env = {k: v for k, v in os.environ.items() if k not in ("OMP_WAIT_POLICY", "LIFT3D_THREADS")}
+    env["OMP_NUM_THREADS"] = "2"
+    return subprocess.Popen([sys.executable, "-c", BUSY_NEIGHBOUR], env=env, stdout=subprocess.DEVNULL,
+                            stderr=subprocess.DEVNULL)
+
+
+def run_under_load(spec: dict) -> dict:
+    """A training step and a 2048-ray render alone and with one busy 2-thread neighbour, in ``rounds``
+    alternating rounds (alone, loaded, alone, ...) so that drifts of the machine's load hit both alike."""
+    trainer, scene, cfg, threads = _trainer(spec)
+    warmup, steps, repeats = int(spec.get("warmup", 5)), int(spec.get("steps", 10)), int(spec.get("repeats", 10))
+    _timed_steps(trainer, warmup)
+    render_fn = _render_rays(trainer, scene)
+    times: dict[str, dict[str, list[float]]] = {"alone": {"step": [], "render": []},
+                                                 "loaded": {"step": [], "render": []}}
+    for _ in range(int(spec.get("rounds", 3))):
+        for condition in ("alone", "loaded"):
+            neighbour = _busy_neighbour() if condition == "loaded" else None
+            try:
+                if neighbour is not None:
+                    time.sleep(float(spec.get("settle_seconds", 1.0)))  # the neighbour's threads are running
+                trainer.model.train()
+                times[condition]["step"] += _timed_steps(trainer, steps)
+                trainer.model.eval()
+                times[condition]["render"] += _timed_calls(render_fn, repeats, warmup=1)
+            finally:
+                if neighbour is not None:
+                    neighbour.kill()
+                    neighbour.wait()
+    med = {c: {k: 1e3 * float(np.median(v)) for k, v in t.items()} for c, t in times.items()}
+    return {
+        "preset": cfg.preset, "threads": threads, "omp_wait_policy": os.environ.get("OMP_WAIT_POLICY"),
+        "steps": steps, "repeats": repeats, "rounds": int(spec.get("rounds", 3)),
+        "step_ms": med["alone"]["step"], "render_ms": med["alone"]["render"],
+        "loaded_step_ms": med["loaded"]["step"], "loaded_render_ms": med["loaded"]["render"],
+        "step_slowdown": med["loaded"]["step"] / med["alone"]["step"],
+        "render_slowdown": med["loaded"]["render"] / med["alone"]["render"],
+    }
+
+
 def run_export(spec: dict) -> dict:
     set_threads()
     return benchmark_export(spec["run"], num_points=int(spec.get("num_points", 1_000_000)))
@@ -171,7 +223,7 @@ def main(argv: list[str] | None = None) -> int:
     spec = json.loads(Path(argv[0]).read_text())
     out = Path(argv[1])
     kinds = {"train": run_train, "evaluate": run_evaluate, "scaling": run_scaling, "profile": run_profile,
-             "export": run_export}
+             "export": run_export, "under_load": run_under_load}
     result = kinds[spec["kind"]](spec)
     result["spec"] = spec
     write_json_atomic(out, result)

@@ -47,6 +47,8 @@ def add_parser(subparsers, verb: str) -> argparse.ArgumentParser:
                    help="skip timing a 1M-point labelled export of the indoor run")
     p.add_argument("--no-profile", action="store_true",
                    help="skip the profile of one training step and one 2048-ray render")
+    p.add_argument("--no-under-load", action="store_true",
+                   help="skip timing a training step and a render beside one busy 2-thread process")
     p.add_argument("--reevaluate", action="store_true",
                    help="re-run the evaluation of cached preset runs and the export timing (after a change to the "
                         "eval or export code); training times and memory stay from the cache")
@@ -70,7 +72,8 @@ def run(args: argparse.Namespace) -> int:
                       hard_noise=not args.no_hard, rgb_only=not args.no_rgb_only, bounded_check=not args.no_bounded,
                       ablation=not args.no_ablation,
                       ablation_budget=args.ablation_budget, scaling=not args.no_scaling, export=not args.no_export,
-                      profile=not args.no_profile, reevaluate=args.reevaluate, quick=args.quick, docs_dir=docs)
+                      profile=not args.no_profile, under_load=not args.no_under_load,
+                      reevaluate=args.reevaluate, quick=args.quick, docs_dir=docs)
     results = run_benchmark(cfg)
     print(f"wrote {cfg.out / 'results.json'}, {cfg.out / 'benchmarks.md'}"
           + (f" and {docs / 'benchmarks.md'}" if docs else ""))

@@ -37,13 +37,16 @@ class Field(nn.Module, ABC):
         self.space = SceneSpace(contraction)
 
     @abstractmethod
-    def geometry(self, x: Tensor) -> tuple[Tensor, Tensor, Tensor]:
+    def geometry(self, x: Tensor, space: tuple[Tensor, Tensor] | None = None) -> tuple[Tensor, Tensor, Tensor]:
         """Density and geometry features.
 
         Parameters
         ----------
         x : Tensor
             ``[N, 3]`` normalised scene points.
+        space : (Tensor, Tensor), optional
+            ``self.space(x)`` when the caller has it already (the renderer does): grid coordinates ``[N, 3]``
+            and validity ``[N]``.
 
         Returns
         -------

@@ -8,6 +8,8 @@ import numpy as np
 import torch
 from torch import Tensor
 
+from lift3d.field import native
+
 
 def contract(x: Tensor, kind: str = "linf") -> Tensor:
     """Scene contraction of mip-NeRF 360: the unit ball stays, the rest of space folds into radius 2.
@@ -100,7 +102,22 @@ _C3 = (-0.5900435899266435, 2.890611442640554, -0.4570457994644658, 0.3731763325
 
 
 def spherical_harmonics(d: Tensor, degree: int) -> Tensor:
-    """Real SH basis of unit directions up to ``degree`` (0–3): ``[N, 3]`` → ``[N, (degree+1)^2]``."""
+    """Real SH basis of unit directions up to ``degree`` (0–3): ``[N, 3]`` → ``[N, (degree+1)^2]``.
+
+    Not differentiable w.r.t. ``d`` on the CPU path of :mod:`lift3d.field.native` (view directions are data).
+    """
+    if not 0 <= degree <= 3:
+        raise ValueError("spherical harmonics degree must be 0..3")
+    ext = native.usable(d) if not d.requires_grad else None
+    if ext is not None and d.dim() == 2 and d.shape[1] == 3:
+        out = d.new_empty(d.shape[0], (degree + 1) ** 2)
+        ext.sh_forward(d.contiguous(), degree, out, 0)
+        return out
+    return spherical_harmonics_torch(d, degree)
+
+
+def spherical_harmonics_torch(d: Tensor, degree: int) -> Tensor:
+    """The pure-torch :func:`spherical_harmonics` (the reference for the C++ path)."""
     if not 0 <= degree <= 3:
         raise ValueError("spherical harmonics degree must be 0..3")
     x, y, z = d[:, 0], d[:, 1], d[:, 2]

@@ -3,7 +3,9 @@
 Measured on 2-core CPUs: 3-D ``F.grid_sample`` and ``F.embedding``'s backward are several
 times slower than gathering the 8 corners with ``index_select`` from a channels-last table and scattering
 the backward with ``index_add_``. :func:`grid_lookup` does exactly that; :func:`grid_lookup_reference`
-is the plain ``grid_sample`` version the tests compare it against.
+is the plain ``grid_sample`` version the tests compare it against. On the CPU, :meth:`DenseGrid.encode`
+does all levels (and the positional encoding) in one C++ pass when the kernels of
+:mod:`lift3d.field.native` are available, with :func:`grid_lookup` as the fallback.
 
 Coordinates are in ``[0, 1]^3``; voxel *corners* (nodes) sit at ``i / (R - 1)``. Points outside are
 clamped to the border.
@@ -16,6 +18,9 @@ import math
 import torch
 import torch.nn.functional as F
 from torch import Tensor, nn
+
+from lift3d.field import native
+from lift3d.field.encodings import positional_encoding, positional_encoding_dim
 
 # Corner offsets of a voxel (x fastest), used to build the 8 gather indices.
 _CORNERS = torch.tensor([[i & 1, (i >> 1) & 1, (i >> 2) & 1] for i in range(8)], dtype=torch.long)
@@ -110,6 +115,47 @@ class _GatherRows(torch.autograd.Function):
         return _scatter_grad(ctx.table, idx, grad_out), None
 
 
+def _native_encode(ext, u: Tensor, resolutions: tuple[int, ...], channels: int, pe: int,
+                   tables: tuple[Tensor, ...]) -> Tensor:
+    """``[grid features of every level | positional encoding]`` by the C++ kernels; levels beyond
+    ``len(tables)`` (inactive) are zeros."""
+    grid_dim = len(resolutions) * channels
+    out = u.new_empty(u.shape[0], grid_dim + (positional_encoding_dim(3, pe) if pe >= 0 else 0))
+    ext.grid_forward(u, [t.detach() for t in tables], list(resolutions[: len(tables)]), out, 0)
+    if len(tables) < len(resolutions):
+        out[:, len(tables) * channels:grid_dim].zero_()
+    if pe >= 0:
+        ext.positional_forward(u, pe, out, grid_dim)
+    return out
+
+
+class _NativeEncode(torch.autograd.Function):
+    """:func:`_native_encode` with the C++ backward (in place into ``table.grad``, see ACCUMULATE_GRAD_IN_PLACE)."""
+
+    @staticmethod
+    def forward(ctx, u: Tensor, resolutions: tuple[int, ...], channels: int, pe: int,  # type: ignore[override]
+                *tables: Tensor) -> Tensor:
+        ext = native.load()
+        ctx.save_for_backward(u)
+        ctx.tables, ctx.resolutions = tables, resolutions
+        return _native_encode(ext, u, resolutions, channels, pe, tables)
+
+    @staticmethod
+    def backward(ctx, grad_out: Tensor):  # type: ignore[override]
+        (u,) = ctx.saved_tensors
+        tables = ctx.tables
+        grad_out = grad_out if grad_out.stride(-1) == 1 else grad_out.contiguous()
+        in_place = [ACCUMULATE_GRAD_IN_PLACE and t.is_leaf for t in tables]
+        grads = []
+        for t, inplace in zip(tables, in_place):
+            if inplace and t.grad is None:
+                t.grad = torch.zeros_like(t)
+            grads.append(t.grad if inplace else torch.zeros_like(t))
+        native.load().grid_backward(u, grad_out, 0, grads, list(ctx.resolutions[: len(tables)]))
+        returned = tuple(None if inplace else g for g, inplace in zip(grads, in_place))
+        return (None, None, None, None) + returned
+
+
 def gather_rows(table: Tensor, idx: Tensor) -> Tensor:
     """Rows ``table[idx]`` (``[N, C]``), differentiable w.r.t. ``table`` without a grid-sized temporary."""
     if not table.requires_grad:
@@ -190,10 +236,34 @@ class DenseGrid(nn.Module):
 
     def forward(self, u: Tensor) -> Tensor:
         """``u``: ``[N, 3]`` in ``[0, 1]`` → ``[N, levels · channels]`` (zeros for inactive fine levels)."""
+        return self.encode(u)
+
+    def encode(self, u: Tensor, position_frequencies: int | None = None) -> Tensor:
+        """Grid features, then (with ``position_frequencies``) the positional encoding of ``2u - 1``.
+
+        ``u``: ``[N, 3]`` in ``[0, 1]`` → ``[N, levels · channels (+ 3 (1 + 2 F))]``, the decoder input in
+        one matrix. Differentiable w.r.t. the tables only. Uses the C++ kernels on the CPU when available
+        (:mod:`lift3d.field.native`), else :meth:`encode_torch`.
+        """
+        u = u.detach()
+        ext = native.usable(u, self.tables[0])
+        if ext is None:
+            return self.encode_torch(u, position_frequencies)
+        u = u.contiguous()
+        tables = tuple(self.tables[: self.active_levels])
+        pe = -1 if position_frequencies is None else int(position_frequencies)
+        if torch.is_grad_enabled() and any(t.requires_grad for t in tables):
+            return _NativeEncode.apply(u, self.resolutions, self.channels, pe, *tables)
+        return _native_encode(ext, u, self.resolutions, self.channels, pe, tables)
+
+    def encode_torch(self, u: Tensor, position_frequencies: int | None = None) -> Tensor:
+        """The pure-torch :meth:`encode` (:func:`grid_lookup` per level; the reference for the C++ path)."""
         out = [grid_lookup(t, r, u) for t, r in zip(self.tables[: self.active_levels], self.resolutions)]
         missing = len(self.resolutions) - len(out)
         if missing:
             out.append(u.new_zeros(u.shape[0], missing * self.channels))
+        if position_frequencies is not None:
+            out.append(positional_encoding(u * 2 - 1, position_frequencies))
         return torch.cat(out, dim=-1)
 
     def total_variation(self, num_samples: int, generator: torch.Generator | None = None) -> Tensor:
@@ -205,7 +275,7 @@ class DenseGrid(nn.Module):
             dev = table.device
             for stride in (1, r, r * r):
                 n = min(num_samples, r**3)
-                base = torch.randint(0, r**3, (n,), generator=generator).to(dev)
+                base = torch.randint(0, r**3, (n,), generator=generator, device=dev)
                 # Keep neighbours inside the grid along this axis.
                 coord = (base // stride) % r
                 base = torch.where(coord == r - 1, base - stride, base)

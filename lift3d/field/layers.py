@@ -5,6 +5,7 @@ from __future__ import annotations
 import torch
 from torch import Tensor, nn
 
+from lift3d.field import native
 from lift3d.field.grids import DenseGrid
 
 
@@ -37,6 +38,22 @@ def make_mlp(in_dim: int, hidden: int, out_dim: int, layers: int) -> nn.Sequenti
         d = hidden
     mods.append(nn.Linear(d, out_dim))
     return nn.Sequential(*mods)
+
+
+def run_mlp(mlp: nn.Sequential, x: Tensor) -> Tensor:
+    """``mlp(x)`` for an MLP of :func:`make_mlp`; without autograd on the CPU, one fused C++ pass
+    (:mod:`lift3d.field.native`: about twice MKL's speed on these narrow layers, and no temporaries)."""
+    if torch.is_grad_enabled() and any(p.requires_grad for p in mlp.parameters()):
+        return mlp(x)
+    ext = native.usable(x)
+    if ext is None:
+        return mlp(x)
+    linear = [m for m in mlp if isinstance(m, nn.Linear)]
+    x = x if x.stride(-1) == 1 else x.contiguous()
+    out = x.new_empty(x.shape[0], linear[-1].out_features)
+    if x.shape[0]:
+        ext.mlp_forward(x, [m.weight.detach() for m in linear], [m.bias.detach() for m in linear], out)
+    return out
 
 
 class ProposalGrid(nn.Module):

@@ -12,7 +12,7 @@ from torch import Tensor, nn
 
 from lift3d.field.base import Field
 from lift3d.field.encodings import positional_encoding, positional_encoding_dim, spherical_harmonics
-from lift3d.field.layers import density_activation, make_mlp
+from lift3d.field.layers import density_activation, make_mlp, run_mlp
 
 if TYPE_CHECKING:  # the registry imports this module
     from lift3d.field.registry import FieldConfig
@@ -65,21 +65,21 @@ class MLPField(Field):
     def has_instances(self) -> bool:
         return self.instance_mlp is not None
 
-    def geometry(self, x: Tensor) -> tuple[Tensor, Tensor, Tensor]:
-        u, valid = self.space(x)
-        h = F.relu(self.trunk(positional_encoding(u * 2 - 1, self.cfg.mlp.frequencies)))
+    def geometry(self, x: Tensor, space: tuple[Tensor, Tensor] | None = None) -> tuple[Tensor, Tensor, Tensor]:
+        u, valid = self.space(x) if space is None else space
+        h = F.relu(run_mlp(self.trunk, positional_encoding(u * 2 - 1, self.cfg.mlp.frequencies)))
         out = self.sigma_out(h)
         sigma = density_activation(out[:, 0] + self.cfg.density_bias) * valid
         return sigma, out[:, 1:], u
 
     def color(self, geo_feat: Tensor, dirs: Tensor) -> Tensor:
         h = torch.cat([geo_feat, spherical_harmonics(dirs, self.cfg.sh_degree)], dim=-1)
-        return torch.sigmoid(self.color_mlp(h))
+        return torch.sigmoid(run_mlp(self.color_mlp, h))
 
     def labels(self, u: Tensor, geo_feat: Tensor) -> tuple[Tensor, Tensor | None]:
         # The label branches read the trunk at these points (the renderer calls labels on a subset of the
         # samples); without gradient, because labels must not shape geometry.
         with torch.no_grad():
-            h = F.relu(self.trunk(positional_encoding(u * 2 - 1, self.cfg.mlp.frequencies)))
-        inst = self.instance_mlp(h) if self.instance_mlp is not None else None
-        return self.semantic_mlp(h), inst
+            h = F.relu(run_mlp(self.trunk, positional_encoding(u * 2 - 1, self.cfg.mlp.frequencies)))
+        inst = run_mlp(self.instance_mlp, h) if self.instance_mlp is not None else None
+        return run_mlp(self.semantic_mlp, h), inst

@@ -16,6 +16,7 @@ from typing import Any, NamedTuple
 from lift3d.field.base import Field
 from lift3d.field.grid import GridField, GridFieldConfig
 from lift3d.field.mlp import MLPField, MLPFieldConfig
+from lift3d.field.occupancy import OccupancyConfig
 
 
 class FieldKind(NamedTuple):
@@ -62,6 +63,7 @@ class FieldConfig:
     clip_to_scene_box: bool = True
     """Bounded scenes with a ``scene_box`` in transforms.json: the lattice also zeroes space outside that
     box (the normalised cube is padded and cubic). Turn off when the declared box is too tight."""
+    occupancy: OccupancyConfig = dc_field(default_factory=OccupancyConfig)
     grid: GridFieldConfig = dc_field(default_factory=GridFieldConfig)
     mlp: MLPFieldConfig = dc_field(default_factory=MLPFieldConfig)
 
@@ -81,7 +83,9 @@ def field_kind(kind: str) -> FieldKind:
 
 def build_field(cfg: FieldConfig) -> Field:
     """The field ``cfg.kind`` names, built from ``cfg``."""
-    return field_kind(cfg.kind).field(cfg)
+    field = field_kind(cfg.kind).field(cfg)
+    field.space.occupancy_in_training = cfg.occupancy.in_training
+    return field
 
 
 # ------------------------------------------------------------------------------------------ old layout

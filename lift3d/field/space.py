@@ -5,14 +5,19 @@ from __future__ import annotations
 import torch
 from torch import Tensor, nn
 
+from lift3d.field import native
 from lift3d.field.encodings import contract, uncontract
+from lift3d.field.occupancy import OccupancyGrid
 
 
 class SceneSpace(nn.Module):
     """Maps normalised scene points to grid coordinates ``[0, 1]^3`` (contracting unbounded space).
 
     Bounded scenes use the box ``[-1, 1]^3``; points outside it are flagged invalid (zero density).
-    Unbounded scenes contract all of space into ``[-2, 2]^3``; every finite point is valid.
+    Unbounded scenes contract all of space into ``[-2, 2]^3``; every finite point is valid. Points in cells
+    no training camera sees (:attr:`observed`) and, once it is built, in cells the occupancy grid marks
+    empty (:attr:`occupancy`, :mod:`lift3d.field.occupancy`) are invalid too. In training the occupancy
+    grid applies only when :attr:`occupancy_in_training` is set.
     """
 
     def __init__(self, contraction: str):
@@ -21,9 +26,33 @@ class SceneSpace(nn.Module):
         self.extent = 1.0 if contraction == "none" else 2.0
         # [R, R, R] bool over grid coordinates (index order x, y, z); empty = every cell observed.
         self.register_buffer("observed", torch.ones(0, 0, 0, dtype=torch.bool))
+        self.occupancy = OccupancyGrid(contraction)
+        self.occupancy_in_training = False
+
+    #: Contraction codes of the C++ kernels (lift3d/field/csrc/native.cpp).
+    CONTRACTION_CODES = {"none": 0, "linf": 1, "l2": 2}
+
+    def masks(self) -> tuple[Tensor, Tensor]:
+        """The lattices that zero density now: ``observed`` and the occupancy grid's ``occupied`` (an empty
+        tensor when it does not apply, e.g. in training without ``occupancy_in_training``)."""
+        applies = self.occupancy.applies() and (self.occupancy_in_training or not self.training)
+        occupied = self.occupancy.occupied if applies else self.observed.new_zeros(0, 0, 0)
+        return self.observed, occupied
 
     def forward(self, x: Tensor) -> tuple[Tensor, Tensor]:
         """``x``: ``[N, 3]`` → ``u`` ``[N, 3]`` in ``[0, 1]``, ``valid`` ``[N]`` bool."""
+        ext = native.usable(x)
+        if ext is not None and x.dim() == 2:
+            observed, occupied = self.masks()
+            x = x.detach().contiguous()
+            u = torch.empty_like(x)
+            valid = torch.empty(x.shape[0], dtype=torch.bool)
+            ext.space_forward(x, self.CONTRACTION_CODES[self.contraction], self.extent, observed, occupied, u, valid)
+            return u, valid
+        return self.forward_torch(x)
+
+    def forward_torch(self, x: Tensor) -> tuple[Tensor, Tensor]:
+        """The pure-torch :meth:`forward` (the reference for the C++ path)."""
         c = contract(x, self.contraction)
         u = (c / self.extent + 1.0) * 0.5
         if self.contraction == "none":
@@ -34,7 +63,10 @@ class SceneSpace(nn.Module):
         if self.observed.numel():
             r = self.observed.shape[0]
             idx = (u * r).long().clamp_(0, r - 1)
-            valid = valid & self.observed[idx[:, 0], idx[:, 1], idx[:, 2]]
+            valid = valid & self.observed.reshape(-1).index_select(0, (idx[:, 0] * r + idx[:, 1]) * r + idx[:, 2])
+        occupied = self.masks()[1]
+        if occupied.numel():
+            valid = valid & self.occupancy.lookup(u)
         return u, valid
 
     def cell_centers(self, resolution: int) -> Tensor:

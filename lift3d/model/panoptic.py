@@ -76,6 +76,19 @@ class PanopticModel(nn.Module):
         grid_ids = {id(p) for p in self.grid_parameters()}
         return [p for p in self.parameters() if id(p) not in grid_ids]
 
+    @torch.no_grad()
+    def update_occupancy(self, generator: torch.Generator | None = None, subdivide: int = 1) -> None:
+        """Measure the field's density once more into its occupancy grid (:mod:`lift3d.field.occupancy`);
+        nothing when ``field.occupancy.resolution`` is 0. ``generator`` places the measurement in each cell
+        (cell centres without one); ``subdivide`` measures ``subdivide³`` points per cell (see
+        :meth:`~lift3d.field.occupancy.OccupancyGrid.update`)."""
+        occ = self.cfg.field.occupancy
+        if occ.resolution <= 0:
+            return
+        self.field.space.occupancy.update(lambda x: self.field.geometry(x)[0], resolution=occ.resolution,
+                                          threshold=occ.threshold, decay=occ.decay, generator=generator,
+                                          subdivide=subdivide)
+
     def render(self, origins: Tensor, dirs: Tensor, *, training: bool = False, with_labels: bool = True,
                generator: torch.Generator | None = None, proposal_anneal: float = 1.0,
                depth_target: Tensor | None = None) -> RenderOutputs:

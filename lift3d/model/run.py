@@ -250,6 +250,8 @@ def model_from_state(state: dict, device: torch.device) -> tuple[Config, Panopti
     model = PanopticModel(cfg, labels).to(device)
     model.load_state_dict(state["model"])
     model.eval()
+    if not model.field.space.occupancy.built:  # checkpoints written before the occupancy grid existed
+        model.update_occupancy(subdivide=2)
     return cfg, model, norm, labels
 
 

@@ -4,22 +4,28 @@
 without gradients (evaluation, export). The field is a :class:`lift3d.field.base.Field` (its ``space``,
 ``geometry``, ``color`` and ``labels``).
 
-Speed on CPU: density is needed at every sample, but the colour, semantic and instance
-decoders only matter where a sample has weight; they run only on samples with ``w > head_weight_threshold``
-(exact up to that threshold; no deferred decoding).
+Speed on CPU: the field's geometry runs only where it can matter — not in cells the
+field gives zero density (outside the scene, unobserved, or empty in the occupancy grid: exact), and not
+behind the point where a ray's transmittance has dropped below ``termination_transmittance`` (early ray
+termination, checked every ``termination_block`` samples). The colour, semantic and instance decoders only
+matter where a sample has weight; they run only on samples with ``w > head_weight_threshold`` (exact up to
+that threshold; no deferred decoding).
 """
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import torch
 from torch import Tensor, nn
 from torch.profiler import record_function
 
+from lift3d.field import native
 from lift3d.field.base import Field
+from lift3d.field.layers import ProposalGrid
 from lift3d.render.samplers import interlevel_loss, ray_aabb, sample_pdf, spacing_fn, spacing_fn_inv, uniform_edges
-from lift3d.render.volume import composite, interval_midpoints, render_weights
+from lift3d.render.volume import interval_midpoints, render_weights
 from lift3d.utils.progress import progress_bar
 
 
@@ -41,6 +47,14 @@ class SamplingConfig:
     """Steps over which proposal weights are annealed from flat (w^0) to sharp (w^1) before resampling:
     an untrained proposal grid front-loads its weights and would otherwise lock samples (and the fog they
     create) near the cameras."""
+    termination_transmittance: float = 1e-4
+    """Early ray termination: the field is not evaluated at samples behind the point where a ray's
+    transmittance has dropped below this (their weight could be at most this); 0 = evaluate every sample."""
+    termination_block: int = 8
+    """Samples per ray evaluated together between two early-termination checks."""
+    termination_in_training: bool = False
+    """Training renders terminate rays early too (the skipped samples' weights are below
+    ``termination_transmittance``). Off until its effect on accuracy is measured: training stays exact."""
     head_weight_threshold: float = 1e-4
     """Colour/label decoders run only on samples whose weight exceeds this (0 = all samples)."""
     label_max_samples: int = 8
@@ -148,7 +162,13 @@ def render_rays(
     if len(proposals):
         s_edges = uniform_edges(near, far, cfg.proposal_samples[0], spacing, training, generator)
         with record_function("render.proposal"):
-            for level, prop in enumerate(proposals):
+            ext = None
+            if not (training or torch.is_grad_enabled() or proposal_anneal < 1.0) and \
+                    all(_is_plain_proposal(p) for p in proposals):
+                ext = native.usable(origins, dirs, s_edges)
+            if ext is not None:
+                s_edges = _proposals_native(ext, field, proposals, origins, dirs, s_edges, cfg, spacing)
+            for level, prop in enumerate(proposals if ext is None else ()):
                 x, _, deltas = points(s_edges)
                 u, valid = space(x)
                 sigma = prop(u, valid).view(n_rays, -1)
@@ -166,21 +186,27 @@ def render_rays(
     x, t_mid, deltas = points(s_edges)
     n_samples = t_mid.shape[1]
     with record_function("render.field_geometry"):
-        sigma, geo, u = field.geometry(x)
+        u, valid = space(x)
+        eps = cfg.termination_transmittance if (cfg.termination_in_training or not training) else 0.0
+        sigma, geo, geo_row, evaluated = geometry_where_needed(field, x, u, valid.view(n_rays, n_samples), deltas,
+                                                               eps, cfg.termination_block)
     if training and cfg.near_gradient_distance > 0:
-        near_scale = (t_mid.detach() / cfg.near_gradient_distance).square().clamp(max=1.0).reshape(-1)
+        near_scale = (t_mid.detach() / cfg.near_gradient_distance).square().clamp(max=1.0)
         sigma = scale_gradient(sigma, near_scale)
-        geo = scale_gradient(geo, near_scale[:, None])
-    weights, _ = render_weights(sigma.view(n_rays, n_samples), deltas)
+        geo_scale = near_scale.reshape(-1, 1) if evaluated is None else near_scale.reshape(-1, 1)[evaluated]
+        geo = scale_gradient(geo, geo_scale)
+    weights, _ = render_weights(sigma, deltas)
+    w_flat = weights.reshape(-1)
 
-    # Decoders only where the sample matters (weights are constants for this choice).
-    keep = (weights.detach() > cfg.head_weight_threshold).reshape(-1)
-    idx = keep.nonzero().squeeze(1)
-    dirs_s = dirs[:, None, :].expand(n_rays, n_samples, 3).reshape(-1, 3)
-    rgb_s = geo.new_zeros(n_rays * n_samples, 3)
+    # Decoders only where the sample matters (weights are constants for this choice); composited with an
+    # index_add per ray over the chosen samples (no [rays x samples x channels] temporaries).
+    with torch.no_grad():
+        idx = (w_flat > cfg.head_weight_threshold).nonzero().squeeze(1)
+        ray = torch.div(idx, n_samples, rounding_mode="floor")
+        rows = idx if geo_row is None else geo_row.index_select(0, idx)
     with record_function("render.field_color"):
-        rgb_s = rgb_s.index_copy(0, idx, field.color(geo.index_select(0, idx), dirs_s.index_select(0, idx)))
-    rgb = composite(weights, rgb_s.view(n_rays, n_samples, 3))
+        rgb_k = field.color(geo.index_select(0, rows), dirs.index_select(0, ray))
+    rgb = rgb_k.new_zeros(n_rays, 3).index_add(0, ray, w_flat.index_select(0, idx)[:, None] * rgb_k)
     opacity = weights.sum(-1)
 
     if background is None:
@@ -196,12 +222,19 @@ def render_rays(
     semantic = instance = None
     if with_labels:
         w_det = weights.detach()  # labels must not carve geometry
-        lidx = _label_samples(w_det, cfg) if 0 < cfg.label_max_samples < n_samples else idx
+        if 0 < cfg.label_max_samples < n_samples:
+            with torch.no_grad():
+                lidx = _label_samples(w_det, cfg)
+                lray = torch.div(lidx, n_samples, rounding_mode="floor")
+                lrows = lidx if geo_row is None else geo_row.index_select(0, lidx)
+        else:
+            lidx, lray, lrows = idx, ray, rows
         with record_function("render.field_labels"):
-            sem_s, inst_s = field.labels(u.index_select(0, lidx), geo.index_select(0, lidx))
-        semantic = composite(w_det, _scatter_rows(sem_s, lidx, n_rays * n_samples).view(n_rays, n_samples, -1))
+            sem_s, inst_s = field.labels(u.index_select(0, lidx), geo.index_select(0, lrows))
+        lw = w_det.reshape(-1).index_select(0, lidx)[:, None]
+        semantic = sem_s.new_zeros(n_rays, sem_s.shape[1]).index_add(0, lray, lw * sem_s)
         if inst_s is not None:
-            instance = composite(w_det, _scatter_rows(inst_s, lidx, n_rays * n_samples).view(n_rays, n_samples, -1))
+            instance = inst_s.new_zeros(n_rays, inst_s.shape[1]).index_add(0, lray, lw * inst_s)
 
     distill = weights.new_zeros(())
     if training and prop_levels:
@@ -213,6 +246,106 @@ def render_rays(
     s_unit = (s_edges - s_near) / (s_far - s_near).clamp_min(1e-9)
     return RenderOutputs(rgb=rgb, depth=depth, opacity=opacity, semantic=semantic, instance=instance,
                          weights=weights, t_mid=t_mid, s_edges=s_unit, distill=distill)
+
+
+def _is_plain_proposal(prop: nn.Module) -> bool:
+    """A :class:`ProposalGrid` of one 1-channel level (what the C++ proposal pass handles)."""
+    return isinstance(prop, ProposalGrid) and len(prop.grid.resolutions) == 1 and prop.grid.channels == 1
+
+
+def _proposals_native(ext, field: Field, proposals: nn.ModuleList, origins: Tensor, dirs: Tensor, s_edges: Tensor,
+                      cfg: SamplingConfig, spacing: str) -> Tensor:
+    """Every proposal level without gradients in one C++ pass per level (lift3d.field.native): the same
+    densities, weights and deterministic resampling as the torch loop of :func:`render_rays`."""
+    space = field.space
+    observed, occupied = space.masks()
+    origins, dirs = origins.contiguous(), dirs.contiguous()
+    for level, prop in enumerate(proposals):
+        n_next = cfg.proposal_samples[level + 1] if level + 1 < len(proposals) else cfg.num_samples
+        grid = prop.grid
+        new = s_edges.new_empty(s_edges.shape[0], n_next + 1)
+        ext.proposal_resample(origins, dirs, s_edges.contiguous(), spacing == "lindisp", grid.tables[0].detach(),
+                              grid.resolutions[0], float(prop.density_bias), space.CONTRACTION_CODES[space.contraction],
+                              space.extent, observed, occupied, 0.01, new)
+        s_edges = new
+    return s_edges
+
+
+def geometry_where_needed(field: Field, x: Tensor, u: Tensor, valid: Tensor, deltas: Tensor, eps: float,
+                          block: int) -> tuple[Tensor, Tensor, Tensor | None, Tensor | None]:
+    """The field's density and geometry features at the samples of a batch of rays, evaluated only where
+    they can matter.
+
+    Samples that are not ``valid`` (the field's density is zero there by definition: outside the scene,
+    unobserved, empty in the occupancy grid) are skipped exactly. With ``eps > 0`` the samples are taken
+    ``block`` at a time along the rays, and a ray stops once its transmittance is below ``eps``: every
+    later sample's weight would be smaller than that (early ray termination). Skipped samples get σ = 0.
+
+    Parameters
+    ----------
+    field : Field
+    x, u : Tensor
+        ``[R·S, 3]`` sample positions (ray-major) and their grid coordinates (``field.space(x)``).
+    valid : Tensor
+        ``[R, S]`` bool, the field may have density there.
+    deltas : Tensor
+        ``[R, S]`` interval lengths.
+    eps : float
+        Transmittance below which a ray terminates (0 = never).
+    block : int
+        Samples per ray between termination checks.
+
+    Returns
+    -------
+    sigma : Tensor
+        ``[R, S]`` (0 where not evaluated).
+    geo : Tensor
+        ``[K, F]`` features of the evaluated samples.
+    geo_row : Tensor or None
+        ``[R·S]`` int64 row of ``geo`` of each sample (-1 where not evaluated); None when every sample was
+        evaluated in order (row = sample).
+    evaluated : Tensor or None
+        ``[K]`` the flat sample index of each row of ``geo`` (None as for ``geo_row``).
+    """
+    n_rays, n_samples = valid.shape
+    if eps <= 0 or block >= n_samples:
+        if bool(valid.all()):
+            sigma, geo, _ = field.geometry(x, space=(u, valid.reshape(-1)))
+            return sigma.view(n_rays, n_samples), geo, None, None
+        block, eps = n_samples, 0.0
+    max_depth = -math.log(eps) if eps > 0 else math.inf
+    optical = torch.zeros(n_rays, device=x.device, dtype=x.dtype)  # Σ σΔ so far (detached)
+    alive = torch.ones(n_rays, device=x.device, dtype=torch.bool)
+    ones = torch.ones(1, device=x.device, dtype=torch.bool).expand(x.shape[0])
+    flat_parts, sigma_parts, geo_parts = [], [], []
+    for start in range(0, n_samples, block):
+        stop = min(start + block, n_samples)
+        take = valid[:, start:stop] & alive[:, None]
+        pos = take.nonzero()  # [K, 2] (ray, sample within the block)
+        if len(pos) == 0 and flat_parts:
+            continue
+        ray = pos[:, 0]
+        flat = ray * n_samples + pos[:, 1] + start
+        sigma, geo, _ = field.geometry(x.index_select(0, flat), space=(u.index_select(0, flat), ones[: len(flat)]))
+        flat_parts.append(flat)
+        sigma_parts.append(sigma)
+        geo_parts.append(geo)
+        if stop < n_samples and max_depth < math.inf:
+            tau = sigma.detach() * deltas.reshape(-1).index_select(0, flat)
+            optical.index_add_(0, ray, torch.nan_to_num(tau, nan=0.0, posinf=max_depth))
+            alive = optical < max_depth
+            if not bool(alive.any()):
+                break
+    flat = torch.cat(flat_parts) if len(flat_parts) > 1 else flat_parts[0]
+    sigma = torch.cat(sigma_parts) if len(sigma_parts) > 1 else sigma_parts[0]
+    geo = torch.cat(geo_parts) if len(geo_parts) > 1 else geo_parts[0]
+    n = n_rays * n_samples
+    if len(flat_parts) == 1 and len(flat) == n:  # every sample evaluated, in order
+        return sigma.view(n_rays, n_samples), geo, None, None
+    sigma_all = sigma.new_zeros(n).index_copy(0, flat, sigma)
+    geo_row = torch.full((n,), -1, dtype=torch.long, device=x.device)
+    geo_row[flat] = torch.arange(len(flat), device=x.device)
+    return sigma_all.view(n_rays, n_samples), geo, geo_row, flat
 
 
 def add_depth_guided_edges(s_edges: Tensor, depth: Tensor, near: Tensor, far: Tensor, n: int, spread: float,
@@ -262,11 +395,6 @@ def _label_samples(weights: Tensor, cfg: SamplingConfig) -> Tensor:
     top_w, top_i = weights.topk(cfg.label_max_samples, dim=1)
     flat = top_i + torch.arange(n_rays, device=weights.device)[:, None] * n_samples
     return flat[top_w > cfg.head_weight_threshold]
-
-
-def _scatter_rows(values: Tensor, idx: Tensor, n: int) -> Tensor:
-    """Rows ``values`` ``[K, C]`` placed at ``idx`` in a zero ``[n, C]`` tensor (differentiable)."""
-    return values.new_zeros(n, values.shape[1]).index_copy(0, idx, values)
 
 
 @torch.no_grad()

@@ -110,13 +110,14 @@ class TrainingData:
         pixels (masked pixels are redrawn once and then dropped)."""
         dev = self.device
         k = min(images_per_batch, len(self))
-        local = torch.randperm(len(self), generator=generator)[:k].to(dev)
+        # Draws come from the generator's device (the training device) and stay there.
+        local = torch.randperm(len(self), generator=generator, device=generator.device)[:k].to(dev)
         w, h = self.widths[local], self.heights[local]
         ps = int(min(patch_size, int(w.min()), int(h.min()))) if patch_size > 0 else 0
         parts_u, parts_v, parts_f = [], [], []
         if ps > 0:
-            x0 = (torch.rand(k, generator=generator).to(dev) * (w - ps + 1).float()).long()
-            y0 = (torch.rand(k, generator=generator).to(dev) * (h - ps + 1).float()).long()
+            x0 = (torch.rand(k, generator=generator, device=generator.device).to(dev) * (w - ps + 1).float()).long()
+            y0 = (torch.rand(k, generator=generator, device=generator.device).to(dev) * (h - ps + 1).float()).long()
             ar = torch.arange(ps, device=dev)
             pu = (x0[:, None, None] + ar[None, None, :]).expand(k, ps, ps)
             pv = (y0[:, None, None] + ar[None, :, None]).expand(k, ps, ps)
@@ -124,7 +125,7 @@ class TrainingData:
             parts_v.append(pv.reshape(-1))
             parts_f.append(local[:, None].expand(k, ps * ps).reshape(-1))
         if rays_per_image > 0:
-            r = torch.rand(k, rays_per_image, generator=generator).to(dev)
+            r = torch.rand(k, rays_per_image, generator=generator, device=generator.device).to(dev)
             pix = (r * (w * h)[:, None].float()).long()
             parts_u.append((pix % w[:, None]).reshape(-1))
             parts_v.append((pix // w[:, None]).reshape(-1))

@@ -41,6 +41,7 @@ from lift3d.train.data import TrainingData
 from lift3d.train.distributed import DistContext, all_ranks_agree, broadcast_object, init_distributed, shutdown
 from lift3d.train.observed import observed_cells
 from lift3d.utils.device import available_cpus, resolve_device, set_threads
+from lift3d.utils.threads import threads_from_environment
 from lift3d.utils.memory import peak_rss_mb
 from lift3d.utils.progress import progress_bar
 
@@ -162,7 +163,9 @@ class Trainer:
             betas=(0.9, 0.99),
             fused=fused,
         )
-        self.generator = torch.Generator().manual_seed(cfg.trainer.seed + 1000003 * self.ctx.rank)
+        # Every random draw of training (batches, jitter, background, L_tv) comes from this generator; it lives
+        # on the training device because torch.rand(..., device=cuda, generator=<cpu generator>) is an error.
+        self.generator = torch.Generator(device=device).manual_seed(cfg.trainer.seed + 1000003 * self.ctx.rank)
         self.step = 0
         self.train_seconds = 0.0  # training time before this process (resumed runs)
         self._fit_start: float | None = None
@@ -187,7 +190,8 @@ class Trainer:
             "config": self.cfg.to_dict(),
             "labels": self.data.labels.to_dict(),
             "normalization": self.norm.to_json(),
-            "rng": {"torch": self.generator.get_state(), "cpu": torch.get_rng_state()},
+            "rng": {"torch": self.generator.get_state(), "cpu": torch.get_rng_state(),
+                    "device": self.generator.device.type},
             "lift3d_version": __version__,
         }
 
@@ -210,8 +214,11 @@ class Trainer:
         self.step = int(state["step"])
         self.train_seconds = float(state.get("train_seconds", 0.0))
         if "rng" in state:
-            self.generator.set_state(state["rng"]["torch"])
-            torch.set_rng_state(state["rng"]["cpu"])
+            # A generator's state only fits a generator of the same device type (a run trained on the CPU and
+            # resumed on a GPU keeps the freshly seeded stream).
+            if state["rng"].get("device", "cpu") == self.generator.device.type:
+                self.generator.set_state(state["rng"]["torch"].cpu())
+            torch.set_rng_state(state["rng"]["cpu"].cpu())
 
     # ---------------------------------------------------------------- one step
     def losses(self, batch) -> tuple[dict[str, torch.Tensor], RenderOutputs]:
@@ -236,6 +243,10 @@ class Trainer:
     def train_step(self) -> dict[str, float] | None:
         """One optimisation step; None when the loss was not finite (the step is skipped)."""
         d = self.cfg.data
+        occ = self.cfg.field.occupancy
+        if occ.resolution > 0 and self.step >= occ.start and (self.step - occ.start) % max(1, occ.update_every) == 0:
+            with record_function("step.occupancy"):
+                self.update_occupancy()
         # record_function labels name the phases in `lift3d bench`'s profile (no cost without a profiler).
         with record_function("step.sample_batch"):
             batch = self.data.sample(self.images_per_rank, d.rays_per_image, d.patch_size, self.generator)
@@ -263,6 +274,13 @@ class Trainer:
         logged = {k: float(v.detach()) for k, v in terms.items()}
         logged["psnr"] = psnr(out.rgb.detach().cpu().numpy(), batch.rgb.cpu().numpy())
         return logged
+
+    def update_occupancy(self) -> None:
+        """One update of the model's occupancy grid. Where in each cell the density is measured follows from
+        the seed and the step alone, so every rank of a distributed run keeps the same grid and a resumed
+        run the same sequence."""
+        gen = torch.Generator(device=self.device).manual_seed(self.cfg.trainer.seed * 1_000_003 + self.step)
+        self.model.update_occupancy(gen)
 
     # ---------------------------------------------------------------- evaluation
     def as_loaded_run(self) -> LoadedRun:
@@ -337,6 +355,8 @@ class Trainer:
         ev: dict[str, Any] = {}
         if self.ctx.enabled:
             summary["replicas_identical"] = self.replicas_identical()
+        if self.cfg.field.occupancy.resolution > 0:
+            self.update_occupancy()  # the final checkpoint's grid measures the final field
         if self.ctx.is_main:
             self.save_checkpoint()
             ev = self.evaluate()
@@ -425,8 +445,9 @@ def _train(data, preset, output_dir, overrides, resume, progress, print_summary,
         run = RunFolder(Path(broadcast_object(str(run_path) if run_path else None, ctx)))
     if ctx.enabled:
         cfg.trainer.device = device_name
-    # Ranks sharing a machine split its CPUs, unless the user chose (trainer.threads or LIFT3D_THREADS).
-    share = ctx.enabled and not os.environ.get("LIFT3D_THREADS")
+    # Ranks sharing a machine split its CPUs, unless the user chose (trainer.threads, LIFT3D_THREADS or
+    # OMP_NUM_THREADS).
+    share = ctx.enabled and threads_from_environment() is None
     set_threads(cfg.trainer.threads or (max(1, _cpu_share(ctx)) if share else None))
     seed_everything(cfg.trainer.seed)
     device = resolve_device(device_name if ctx.enabled else cfg.trainer.device)

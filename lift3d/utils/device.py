@@ -7,6 +7,7 @@ import os
 import torch
 
 from lift3d.errors import InputError
+from lift3d.utils.threads import threads_from_environment
 
 
 def resolve_device(name: str = "auto") -> torch.device:
@@ -47,8 +48,14 @@ def available_cpus() -> int:
     return n
 
 
+def default_threads() -> int:
+    """Threads lift3d uses unless told otherwise: ``LIFT3D_THREADS``, else ``OMP_NUM_THREADS``, else every
+    CPU this process may use (:func:`available_cpus`)."""
+    return threads_from_environment() or available_cpus()
+
+
 def set_threads(n: int | None = None) -> int:
-    """Use ``n`` intra-op threads (default: every CPU this process may use). Returns the count."""
-    n = n or int(os.environ.get("LIFT3D_THREADS", 0)) or available_cpus()
+    """Use ``n`` intra-op threads (default: :func:`default_threads`). Returns the count."""
+    n = n or default_threads()
     torch.set_num_threads(n)
     return n
