@@ -58,6 +58,10 @@ def run_train(spec: dict) -> dict:
         "train_wall_seconds": train_wall,
         "peak_rss_mb": rss_train,
         "depth_supervision": bool(result.summary.get("depth_supervision", False)),
+        # What the run trained on and whether it refined its poses, as the run records them (None: the
+        # benchmark derives the inputs from depth_supervision).
+        "inputs": result.summary.get("inputs"),
+        "pose_refinement": bool(result.summary.get("pose_refinement", False)),
         "metrics": metrics,
     })
 
