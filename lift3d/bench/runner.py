@@ -38,6 +38,7 @@ Each measurement runs in its own process (:mod:`lift3d.bench.worker`) and is cac
 from __future__ import annotations
 
 import csv
+import dataclasses
 import datetime as _dt
 import io
 import json
@@ -86,14 +87,19 @@ SECTIONS = {"presets": "preset_table", "curves": "curves", "ablation": "ablation
 #: Inputs of a preset-table row → the ``lift3d synth --depth`` of its scenes, and the label the table shows
 #: until the run itself says what it trained on.
 INPUTS = {"rgb": "none", "rgb+depth": "sensor"}
-INPUT_LABELS = {"rgb": "RGB", "rgb+depth": "RGB + depth"}
 #: Label noise and pose noise (degrees, centimetres) of the noise curves, from none to most.
 LABEL_NOISE_LEVELS = ("clean", "moderate", "hard", "view-correlated")
 POSE_NOISE_LEVELS = ((0.0, 0.0), (0.5, 2.0), (1.0, 5.0))
 #: Seconds per training step and per evaluation on a 2-core CPU (docs/benchmarks.md of 2026-11-23): what
-#: ``--plan`` assumes until finished runs of the same kind are in the cache.
+#: ``--plan`` assumes until finished runs of the same kind are in the cache. An evaluation without the 3D
+#: metrics (ablation and label-noise runs: their tables show 2D metrics only) renders the test views and
+#: scores them; the labelled export the 3D metrics score is most of a full evaluation.
 REFERENCE_STEP_SECONDS = {"fast": 0.36, "balanced": 0.54, "quality": 1.67, "mlp": 2.4, "quick": 0.15}
 REFERENCE_EVAL_SECONDS = {"fast": 60.0, "balanced": 70.0, "quality": 90.0, "quick": 10.0}
+REFERENCE_EVAL_2D_SECONDS = {"fast": 15.0, "balanced": 20.0, "quality": 25.0, "quick": 2.0}
+#: Minutes of the measurements that are not training runs (2-core CPU): scaling (16 points of a few timed
+#: steps and renders), the 1M-point export and the profile.
+REFERENCE_EXTRA_MINUTES = {"scaling": 25.0, "export": 2.0, "profile": 2.0}
 
 # Tiny settings for --quick: every code path, seconds per run.
 _QUICK_TRAIN = {
@@ -101,7 +107,7 @@ _QUICK_TRAIN = {
               "mlp": {"width": 64, "depth": 3}},
     "sampling": {"proposal_resolutions": [24], "proposal_samples": [32], "num_samples": 16},
     "data": {"images_per_batch": 4, "rays_per_image": 64, "patch_size": 8},
-    "optim": {"steps": 40, "warmup_steps": 5},
+    "optim": {"steps": 10, "warmup_steps": 2},
     "trainer": {"eval_every": 0, "checkpoint_every": 0},
 }
 _QUICK_SCENE = {"n_views": 12, "width": 40, "height": 40}
@@ -173,6 +179,9 @@ class Job:
     scene: dict  # lift3d synth arguments: kind, seed, noise, depth, pose_noise
     overrides: dict
     cache: Path
+    #: Compute the 3D metrics (the labelled export scored against gt/points.ply): only for runs a table
+    #: with 3D columns shows (presets, pose-noise curve, bounded, the export's run); see :func:`plan_jobs`.
+    points3d: bool = True
 
     @property
     def name(self) -> str:
@@ -225,7 +234,7 @@ def _worker(spec: dict, out: Path, in_process: bool = False) -> dict:
     return json.loads(out.read_text())
 
 
-def _reevaluate(path: Path, train_spec: dict) -> dict:
+def _reevaluate(path: Path, eval_spec: dict, in_process: bool = False) -> dict:
     """Evaluate a cached training run again (fresh process) and store the new metrics in its cache file.
 
     The render timing is not measured again: it belongs with the training-time measurement (same process
@@ -234,9 +243,10 @@ def _reevaluate(path: Path, train_spec: dict) -> dict:
     if not (Path(cached["run"]) / "config.yml").is_file():
         raise InputError(path, f"its run folder {cached['run']} is gone; delete this cache file to train the run "
                                "again, or run without --reevaluate")
-    spec = {"kind": "evaluate", "run": cached["run"], "num_points": train_spec["num_points"], "timing_repeats": 0}
+    spec = {"kind": "evaluate", "run": cached["run"], "num_points": eval_spec["num_points"], "timing_repeats": 0,
+            "points3d": eval_spec.get("points3d", True)}
     fresh_path = path.with_name(path.stem + ".eval.json")
-    fresh = _worker(spec, fresh_path)
+    fresh = _worker(spec, fresh_path, in_process=in_process)
     for key in ("render_ms_per_2048_rays", "render_timing"):
         fresh["metrics"][key] = cached["metrics"].get(key)
     cached["metrics"] = fresh["metrics"]
@@ -269,6 +279,13 @@ def _scene(cfg: BenchConfig, kind: str, seed: int, noise: str, depth: str = "sen
     return root
 
 
+def run_inputs(res: dict) -> str:
+    """The *inputs* column of one run: what it trained on, as the run itself records it (the training
+    summary's ``inputs``, from the run's config.yml: ``RGB``, ``RGB + SfM points``, ``RGB + depth``); for runs
+    that do not record it, derived from whether depth maps supervised the training."""
+    return res.get("inputs") or ("RGB + depth" if res.get("depth_supervision") else "RGB")
+
+
 def _record(res: dict, **tags) -> dict:
     """Flatten one train+eval result into a results.json run record."""
     m = res["metrics"]
@@ -280,8 +297,7 @@ def _record(res: dict, **tags) -> dict:
         "steps": res["steps"],
         "peak_rss_mb": res["peak_rss_mb"],
         "depth_supervision": depth,
-        # What the run trained on, as the run says (older results: from whether depth supervised it).
-        "inputs": res.get("inputs") or ("RGB + depth" if depth else "RGB"),
+        "inputs": run_inputs(res),
         "pose_refinement": bool(res.get("pose_refinement", False)),
         "render_ms_per_2048_rays": m.get("render_ms_per_2048_rays"),
         "run": res["run"],
@@ -307,11 +323,35 @@ def _steps_of(preset: str, overrides: dict) -> int:
                            else None).optim.steps)
 
 
+#: Sections whose tables show 3D columns: their runs compute the 3D metrics (``--quick``: the preset table
+#: and the export's run only, to keep the smoke test short).
+_SECTIONS_3D = ("runs", "pose_noise", "parameterisation", "")
+_SECTIONS_3D_QUICK = ("runs", "")
+
+
 def plan_jobs(cfg: BenchConfig) -> list[Job]:
     """Every training run the configured sections need, in the order they run (shared runs once).
 
     A run two sections need (the indoor moderate RGB + depth run of the preset table is also the moderate
-    point of both noise curves) is one job, listed under its first section and reused by the others."""
+    point of both noise curves) is one job, listed under its first section and reused by the others.
+
+    A run computes the 3D metrics when any section with 3D columns would use it with every section on
+    (so a run cached by ``--only curves`` serves the preset table later); the ablation's and the
+    label-noise curve's own runs skip them (their tables show 2D metrics; the export is most of an
+    evaluation's time). ``--quick`` decides from the sections it runs."""
+    jobs = _plan_sections(cfg)
+    if cfg.quick:
+        with_3d = {j.cache for j in jobs if j.section in _SECTIONS_3D_QUICK}
+    else:
+        full = dataclasses.replace(cfg, preset_table=True, curves=True, bounded_check=True, export=True, ablation=False)
+        with_3d = {j.cache for j in _plan_sections(full) if j.section in _SECTIONS_3D}
+    for job in jobs:
+        job.points3d = job.cache in with_3d
+    return jobs
+
+
+def _plan_sections(cfg: BenchConfig) -> list[Job]:
+    """The jobs of :func:`plan_jobs` for the sections ``cfg`` switches on."""
     cache = cfg.out / "cache"
     quick = _QUICK_TRAIN if cfg.quick else {}
     first = cfg.presets[0]
@@ -348,7 +388,7 @@ def plan_jobs(cfg: BenchConfig) -> list[Job]:
                 for seed in cfg.seeds:
                     add("pose_noise", "indoor", seed, "moderate", first, variant, pose_noise=pose, overrides=over)
     if cfg.ablation:
-        budget = 8.0 if cfg.quick else float(cfg.ablation_budget)
+        budget = 2.0 if cfg.quick else float(cfg.ablation_budget)
         modes = {"steps": {"optim": {"steps": _QUICK_TRAIN["optim"]["steps"] if cfg.quick else cfg.ablation_steps}},
                  "time": {"trainer": {"time_budget": budget}, "optim": {"steps": 100000}}}
         for mode, mode_over in modes.items():
@@ -378,7 +418,7 @@ def _estimate_seconds(cfg: BenchConfig, jobs: list[Job]) -> dict[Path, float]:
     Seconds per step and per evaluation come from finished runs of the same preset and field kind in this
     cache (their median) when there are any, else from REFERENCE_STEP_SECONDS / REFERENCE_EVAL_SECONDS."""
     per_step: dict[str, list[float]] = {}
-    per_eval: dict[str, list[float]] = {}
+    per_eval: dict[tuple[str, bool], list[float]] = {}
     keys: dict[Path, str] = {}
     for job in jobs:
         kind = job.overrides.get("field", {}).get("kind", "grid")
@@ -388,16 +428,19 @@ def _estimate_seconds(cfg: BenchConfig, jobs: list[Job]) -> dict[Path, float]:
             res = json.loads(job.cache.read_text())
             if res.get("steps"):
                 per_step.setdefault(key, []).append(res["train_seconds"] / res["steps"])
-            if (res.get("metrics") or {}).get("seconds"):
-                per_eval.setdefault(key, []).append(res["metrics"]["seconds"])
+            m = res.get("metrics") or {}
+            if m.get("seconds"):
+                ev_key = "quick" if cfg.quick else job.tags["preset"]
+                per_eval.setdefault((ev_key, m.get("points3d") is not None), []).append(m["seconds"])
     out = {}
     for job in jobs:
         if job.cache.is_file():
             continue
         key = keys[job.cache]
         step = statistics.median(per_step[key]) if key in per_step else REFERENCE_STEP_SECONDS.get(key, 0.5)
-        ev_key = key if key != "mlp" else job.tags["preset"]
-        ev = statistics.median(per_eval[ev_key]) if ev_key in per_eval else REFERENCE_EVAL_SECONDS.get(ev_key, 60.0)
+        ev_key = (key if key != "mlp" else job.tags["preset"], job.points3d)
+        reference = REFERENCE_EVAL_SECONDS if job.points3d else REFERENCE_EVAL_2D_SECONDS
+        ev = statistics.median(per_eval[ev_key]) if ev_key in per_eval else reference.get(ev_key[0], 60.0)
         budget = job.overrides.get("trainer", {}).get("time_budget")
         train = float(budget) if budget else _steps_of(job.tags["preset"], job.overrides) * step
         out[job.cache] = train + ev
@@ -433,12 +476,15 @@ def plan_text(cfg: BenchConfig, jobs: list[Job] | None = None) -> str:
         todo_s += est.get(job.cache, 0.0)
         lines.append(f"{'cached' if done else 'to do':<7} {est.get(job.cache, 0.0) / 60:>8.1f}  {job.name[4:]} "
                      f"({', '.join(names)})")
-    extra = [name for name, on in (("scaling (16 timing points, ~1-2 min each)", cfg.scaling),
-                                   ("export timing (1M points, ~1 min)", cfg.export),
-                                   ("profile (~2 min)", cfg.profile)) if on]
+    extra = {name: REFERENCE_EXTRA_MINUTES[name] * (0.1 if cfg.quick else 1.0)
+             for name, on in (("scaling", cfg.scaling), ("export", cfg.export), ("profile", cfg.profile)) if on}
+    extra_s = 60.0 * sum(extra.values())
     lines += ["", f"{n_done + n_todo} training runs: {n_done} cached, {n_todo} to do, about "
                   f"{todo_s / 3600:.1f} h of training and evaluation still to do"
-                  + (f"; besides: {', '.join(extra)}" if extra else "") + "."]
+                  + (f"; besides: {', '.join(f'{k} ~{v:.0f} min' for k, v in extra.items())}" if extra else "") + "."]
+    lines.append(f"In all about {(todo_s + extra_s) / 3600:.1f} h on one machine, one run at a time (runs are not "
+                 "run in parallel: the timings would disturb each other); twice that or more when others share "
+                 "the cores.")
     return "\n".join(lines)
 
 
@@ -458,21 +504,23 @@ def run_benchmark(cfg: BenchConfig) -> dict:
     done: dict[Path, dict | None] = {}
     for job in progress_bar(jobs, desc="bench runs", disable=not cfg.progress, unit="run"):
         if job.cache not in done:  # a run several sections share is trained (or skipped) once
-            try:
-                scene = _scene(cfg, job.scene["kind"], job.scene["seed"], job.scene["noise"], job.scene["depth"],
-                               job.scene["pose_noise"])
-            except InputError as exc:
-                # e.g. a pose noise that would put a written camera inside geometry on this seed: the row then
-                # has one seed less, and the report says so.
-                results["skipped"].append({**job.tags, "section": job.section, "reason": str(exc)})
-                done[job.cache] = None
-                continue
-            spec = {"kind": "train", "scene": str(scene), "preset": job.tags["preset"], "seed": job.scene["seed"],
-                    "output_dir": str(cfg.out / "runs" / (job.section or "runs")), "overrides": job.overrides,
-                    "timing_repeats": 1 if cfg.quick else 10, "num_points": 5_000 if cfg.quick else 200_000}
-            if cfg.reevaluate and job.section != "ablation" and job.cache.is_file():
-                done[job.cache] = _reevaluate(job.cache, spec)
+            eval_spec = {"num_points": 5_000 if cfg.quick else 200_000, "points3d": job.points3d}
+            if job.cache.is_file():  # finished before: its scene is not needed (nor made again)
+                done[job.cache] = (_reevaluate(job.cache, eval_spec, in_process=cfg.quick)
+                                   if cfg.reevaluate and job.section != "ablation" else json.loads(job.cache.read_text()))
             else:
+                try:
+                    scene = _scene(cfg, job.scene["kind"], job.scene["seed"], job.scene["noise"], job.scene["depth"],
+                                   job.scene["pose_noise"])
+                except InputError as exc:
+                    # e.g. a pose noise that would put a written camera inside geometry on this seed: the row then
+                    # has one seed less, and the report says so.
+                    results["skipped"].append({**job.tags, "section": job.section, "reason": str(exc)})
+                    done[job.cache] = None
+                    continue
+                spec = {"kind": "train", "scene": str(scene), "preset": job.tags["preset"],
+                        "seed": job.scene["seed"], "output_dir": str(cfg.out / "runs" / (job.section or "runs")),
+                        "overrides": job.overrides, "timing_repeats": 1 if cfg.quick else 10, **eval_spec}
                 done[job.cache] = _worker(spec, job.cache, in_process=cfg.quick)
         if done[job.cache] is None:
             continue
@@ -499,7 +547,7 @@ def run_benchmark(cfg: BenchConfig) -> dict:
         spec = {"kind": "profile", "scene": str(scene), "preset": cfg.presets[0], "overrides": quick_over,
                 "output_dir": str(cfg.out / "runs" / "profile"), "warmup": 2 if cfg.quick else 10,
                 "steps": 2 if cfg.quick else 10, "repeats": 2 if cfg.quick else 10}
-        results["profile"] = _worker(spec, cache / f"profile_{cfg.presets[0]}.json")
+        results["profile"] = _worker(spec, cache / f"profile_{cfg.presets[0]}.json", in_process=cfg.quick)
     if cfg.under_load and "indoor" in cfg.scenes:
         scene = _scene(cfg, "indoor", cfg.seeds[0], "moderate")
         spec = {"kind": "under_load", "scene": str(scene), "preset": cfg.presets[0], "overrides": quick_over,
@@ -533,10 +581,10 @@ def run_scaling(cfg: BenchConfig, cache: Path) -> list[dict]:
             over = _merge(over, {"field": {"num_instance_channels": value}})
         elif factor == "classes" and value:
             over = _merge(over, {"field": {"num_semantic_classes": value}})
-        scene = _scene(cfg, "indoor", 0, "moderate", n_views=views, width=res, height=res)
+        scene = _scene(cfg, "indoor", cfg.seeds[0], "moderate", n_views=views, width=res, height=res)
         spec = {"kind": "scaling", "scene": str(scene), "preset": cfg.presets[0], "overrides": over,
-                "output_dir": str(cfg.out / "runs" / "scaling"), "warmup": 3 if cfg.quick else 5,
-                "steps": 5 if cfg.quick else 12, "repeats": 3 if cfg.quick else 7}
+                "output_dir": str(cfg.out / "runs" / "scaling"), "warmup": 1 if cfg.quick else 5,
+                "steps": 2 if cfg.quick else 12, "repeats": 2 if cfg.quick else 7}
         res_ = _worker(spec, cache / f"scaling_{factor}_{value}.json", in_process=cfg.quick)
         shown = res_["semantic_classes"] if factor == "classes" else value
         rows.append({"factor": factor, "value": shown, "step_ms": res_["step_ms"], "render_ms": res_["render_ms"],
