@@ -11,7 +11,7 @@ import json
 import pytest
 
 from lift3d.bench import tables
-from lift3d.bench.runner import BenchConfig, plan_jobs, write_reports
+from lift3d.bench.runner import BenchConfig, plan_jobs, run_inputs, write_reports
 from lift3d.bench.stats import mean_std, paired_difference
 from lift3d.cli.main import main
 
@@ -112,6 +112,15 @@ def test_report_is_written_from_the_results(tmp_path):
     row = summary["runs"][0]
     assert row["seeds"] == [0, 1, 2]
     assert row["metrics"]["miou"]["per_seed"] == pytest.approx({"0": 0.75, "1": 0.85, "2": 0.8})
+
+
+def test_inputs_column_is_what_the_run_records():
+    """The run's own record wins (a run may say `RGB + SfM points`); older runs: from depth supervision."""
+    assert run_inputs({"inputs": "RGB + SfM points", "depth_supervision": False}) == "RGB + SfM points"
+    assert run_inputs({"inputs": None, "depth_supervision": True}) == "RGB + depth"
+    assert run_inputs({"depth_supervision": False}) == "RGB"
+    rows = tables.group_rows([_run(0, inputs="RGB + SfM points"), _run(1, inputs="RGB + SfM points")], ["scene"])
+    assert rows[0]["inputs"] == "RGB + SfM points"
 
 
 def test_tuning_seeds_are_called_development_numbers():

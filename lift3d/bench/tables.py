@@ -196,8 +196,9 @@ def presets_markdown(results: dict) -> list[str]:
         "is the same metric on the pseudo-labels it learned from (per-frame ids as given). PQ^scene and mIoU at "
         "`min_area` 0.005. Render: median ms for 2048 rays with rgb, depth, semantic and instance. *Inputs*: what "
         "the run trained on, as it records it — `RGB + depth` with the scenes' sensor-like depth maps (noise "
-        "growing with depth, holes), `RGB` for the same scenes written without depth maps (`lift3d synth "
-        "--depth none`, the paper's setting). 3D metrics score the exported point cloud against `gt/points.ply` at "
+        "growing with depth, holes); for the same scenes written without depth maps (`lift3d synth --depth "
+        "none`) `RGB` (the paper's setting) or `RGB + SfM points` when depth from the images supervises the "
+        "geometry ([sfm.md](sfm.md)). 3D metrics score the exported point cloud against `gt/points.ply` at "
         "τ = 1 % of its diagonal; *objects found* is the share of GT objects one exported instance covers with "
         "point IoU > 0.5 (of how many), *instances* how many thing instances the export holds.",
         "",
@@ -253,7 +254,7 @@ def _presets_prose(rows: list[dict]) -> list[str]:
                 f"{len(diffs)} rows")
         if down:
             text += "; it lowers it significantly in " + ", ".join(_row_name(r) for r in down)
-        if diffs:
+        if len(diffs) > 1:
             lo = min(diffs, key=lambda x: x[1]["mean"] if x[1]["mean"] is not None else 9.0)
             hi = max(diffs, key=lambda x: x[1]["mean"] if x[1]["mean"] is not None else -9.0)
             if lo[1]["mean"] is not None:
