@@ -151,6 +151,10 @@ def test_plan_lists_every_run_once_with_its_sections_and_an_estimate(tmp_path, c
     assert "cached       0.0  indoor_s100_moderate_fast_all (presets)" in out
     assert "to do       51.7  indoor_s101_moderate_fast_all" in out  # 1500 x 2 s + 100 s
     assert "20 training runs: 1 cached, 19 to do" in out and not list(tmp_path.glob("scenes"))
+    # --quick is a smoke test: by default it trains on tuning seeds, never on the reserved ones.
+    assert main(["bench", "--plan", "--quick", "--out", str(tmp_path / "quick"), "--only", "presets"]) == 0
+    out = capsys.readouterr().out
+    assert "indoor_s100_moderate_fast_all" in out and "indoor_s101_" in out and "_s0_" not in out
 
 
 @pytest.mark.parametrize("argv, message", [

@@ -47,7 +47,7 @@ def _csv(kind):
 
 
 def add_parser(subparsers, verb: str) -> argparse.ArgumentParser:
-    from lift3d.bench.tables import REPORT_SEEDS  # light module (no torch): keeps `lift3d --help` cheap
+    from lift3d.bench.tables import QUICK_SEEDS, REPORT_SEEDS  # light module (no torch): keeps `lift3d --help` cheap
 
     p = subparsers.add_parser(verb, help="measure accuracy over scene seeds, noise robustness, ablation and speed",
                               description=DESCRIPTION, formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -62,9 +62,10 @@ def add_parser(subparsers, verb: str) -> argparse.ArgumentParser:
     p.add_argument("--presets", type=_csv(str), default=("fast", "balanced"), metavar="LIST",
                    help="presets in cost order: the first makes every row, the others the indoor RGB + depth rows "
                         "(default: fast,balanced)")
-    p.add_argument("--seeds", type=_csv(int), default=REPORT_SEEDS, metavar="LIST",
+    p.add_argument("--seeds", type=_csv(int), default=None, metavar="LIST",
                    help="scene seeds every row averages over (default: "
-                        f"{','.join(map(str, REPORT_SEEDS))}; seeds >= 5 are for tuning)")
+                        f"{','.join(map(str, REPORT_SEEDS))}; with --quick {','.join(map(str, QUICK_SEEDS))}: "
+                        "seeds >= 5 are for tuning and smoke tests)")
     p.add_argument("--noises", type=_csv(str), default=("moderate", "view-correlated"), metavar="LIST",
                    help="label noise of the preset table's scenes (default: moderate,view-correlated)")
     p.add_argument("--inputs", type=_csv(str), default=("rgb", "rgb+depth"), metavar="LIST",
@@ -110,7 +111,10 @@ def run(args: argparse.Namespace) -> int:
     if docs is None and not args.quick and not args.plan:
         checkout_docs = Path(__file__).resolve().parents[2] / "docs"
         docs = checkout_docs if checkout_docs.is_dir() else None
-    cfg = BenchConfig(out=Path(args.out), scenes=args.scenes, presets=args.presets, seeds=args.seeds,
+    from lift3d.bench.tables import QUICK_SEEDS, REPORT_SEEDS
+
+    seeds = args.seeds if args.seeds is not None else (QUICK_SEEDS if args.quick else REPORT_SEEDS)
+    cfg = BenchConfig(out=Path(args.out), scenes=args.scenes, presets=args.presets, seeds=seeds,
                       noises=args.noises, inputs=args.inputs, ablation_steps=args.ablation_steps,
                       ablation_budget=args.ablation_budget, reevaluate=args.reevaluate, quick=args.quick,
                       docs_dir=docs, **{SECTIONS[s]: on for s, on in switches.items()})
