@@ -9,9 +9,10 @@ from lift3d.bench.runner import BenchConfig, run_benchmark
 
 def test_bench_quick_scaling_and_profile(tmp_path, monkeypatch):
     monkeypatch.setenv("LIFT3D_NO_PROGRESS", "1")
+    # (The under-load section has its own test in tests/test_bench.py.)
     cfg = BenchConfig(out=tmp_path / "bench", scenes=("indoor",), presets=("fast",), seeds=(100,), preset_table=False,
-                      curves=False, ablation=False, bounded_check=False, export=False, under_load=False, quick=True, progress=False,
-                      docs_dir=tmp_path / "docs")
+                      curves=False, ablation=False, bounded_check=False, export=False, under_load=False, quick=True,
+                      progress=False, docs_dir=tmp_path / "docs")
     results = run_benchmark(cfg)
     assert {s["factor"] for s in results["scaling"]} == {"resolution", "views", "instance_channels", "classes"}
     assert all(s["step_ms"] > 0 and s["render_ms"] > 0 and s["pixels"] > 0 for s in results["scaling"])

@@ -98,8 +98,9 @@ REFERENCE_STEP_SECONDS = {"fast": 0.36, "balanced": 0.54, "quality": 1.67, "mlp"
 REFERENCE_EVAL_SECONDS = {"fast": 60.0, "balanced": 70.0, "quality": 90.0, "quick": 10.0}
 REFERENCE_EVAL_2D_SECONDS = {"fast": 15.0, "balanced": 20.0, "quality": 25.0, "quick": 2.0}
 #: Minutes of the measurements that are not training runs (2-core CPU): scaling (16 points of a few timed
-#: steps and renders), the 1M-point export and the profile.
-REFERENCE_EXTRA_MINUTES = {"scaling": 25.0, "export": 2.0, "profile": 2.0}
+#: steps and renders), the 1M-point export, the profile, and the step and render timings alone and beside a
+#: busy neighbour.
+REFERENCE_EXTRA_MINUTES = {"scaling": 25.0, "export": 2.0, "profile": 2.0, "under load": 2.0}
 
 # Tiny settings for --quick: every code path, seconds per run.
 _QUICK_TRAIN = {
@@ -477,7 +478,8 @@ def plan_text(cfg: BenchConfig, jobs: list[Job] | None = None) -> str:
         lines.append(f"{'cached' if done else 'to do':<7} {est.get(job.cache, 0.0) / 60:>8.1f}  {job.name[4:]} "
                      f"({', '.join(names)})")
     extra = {name: REFERENCE_EXTRA_MINUTES[name] * (0.1 if cfg.quick else 1.0)
-             for name, on in (("scaling", cfg.scaling), ("export", cfg.export), ("profile", cfg.profile)) if on}
+             for name, on in (("scaling", cfg.scaling), ("export", cfg.export), ("profile", cfg.profile),
+                              ("under load", cfg.under_load)) if on}
     extra_s = 60.0 * sum(extra.values())
     lines += ["", f"{n_done + n_todo} training runs: {n_done} cached, {n_todo} to do, about "
                   f"{todo_s / 3600:.1f} h of training and evaluation still to do"
