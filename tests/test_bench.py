@@ -1,93 +1,242 @@
-"""`lift3d bench --quick`: the benchmark's smoke test (tiny scenes, few steps; every section and report)."""
+"""`lift3d bench`: the seed statistics and the report written from them (fabricated results, no training),
+the plan, bad flags, and one preset-table row end to end with `--quick` (tiny scenes, few steps); the other
+sections end to end are in tests/test_bench_sections.py.
+
+Tests train only on tuning seeds (>= 100): seeds 0-4 are reserved for the reported numbers.
+"""
 
 import csv
 import json
-import subprocess
-import sys
 
 import pytest
 
+from lift3d.bench import tables
+from lift3d.bench.runner import BenchConfig, plan_jobs, run_inputs, write_reports
+from lift3d.bench.stats import mean_std, paired_difference
+from lift3d.cli.main import main
 
-@pytest.mark.slow
-def test_bench_quick_writes_every_report(tmp_path):
-    out = tmp_path / "bench"
-    cmd = [sys.executable, "-m", "lift3d", "bench", "--quick", "--scenes", "indoor", "--presets", "fast",
-           "--out", str(out), "--docs-dir", str(tmp_path / "docs")]
-    proc = subprocess.run(cmd, capture_output=True, text=True, timeout=1200,
-                          env={**__import__("os").environ, "LIFT3D_NO_PROGRESS": "1"})
-    assert proc.returncode == 0, proc.stderr[-3000:]
-    results = json.loads((out / "results.json").read_text())
-    assert results["machine"]["cpu"] and results["machine"]["torch_threads"] >= 1
-    runs = results["runs"]
-    assert {(r["noise"], r["preset"], r["variant"]) for r in runs} == {
-        ("moderate", "fast", "all"), ("hard", "fast", "all"), ("moderate", "fast", "rgb-only")}
-    # The synthetic scenes ship depth maps: the presets use them, the RGB-only row and the ablation do not.
-    assert {r["variant"]: r["depth_supervision"] for r in runs} == {"all": True, "rgb-only": False}
-    assert not any(r["depth_supervision"] for r in results["ablation"])
-    for r in runs:
-        assert r["train_seconds"] > 0 and r["peak_rss_mb"] > 100 and r["render_ms_per_2048_rays"] > 0
-        assert 0 <= r["miou"] <= 1 and 0 <= r["pq_scene"] <= 1 and r["psnr"] > 5
-        assert r["pseudo_labels"]["miou"] is not None and r["points3d"]["fscore"] is not None
-    assert [r["variant"] for r in results["ablation"]] == ["base", "base+S", "base+S+L_seg", "base+S+L_feat", "all"]
-    assert {s["factor"] for s in results["scaling"]} == {"resolution", "views", "instance_channels", "classes"}
-    ex = results["export"]
-    assert ex["points"] > 0 and ex["seconds"] > 0 and ex["peak_rss_mb"] > 100 and ex["preset"] == "fast"
-    prof = results["profile"]
-    assert prof["step_ms"] > 0 and prof["render_ms"] > 0
-    stages = {r["name"] for r in prof["train"]["stages"]}
-    assert {"step.sample_batch", "step.forward_and_losses", "step.backward", "step.optimizer",
-            "render.field_geometry"} <= stages
-    assert "render.field_geometry" in {r["name"] for r in prof["render"]["stages"]}
-    for block in (prof["train"], prof["render"]):
-        assert block["ops"] and all(r["self_ms"] >= 0 for r in block["ops"])
-        assert sum(r["percent"] for r in block["ops"]) <= 100.0 + 1e-6
-    rows = list(csv.DictReader((out / "results.csv").open()))
-    assert len(rows) == len(runs) + len(results["ablation"])
-    for name in ("pareto.png", "scaling.png", "benchmarks.md"):
-        assert (out / name).is_file()
+
+# ------------------------------------------------------------------------------------------ statistics
+def test_mean_std_and_paired_differences():
+    m, s, n = mean_std([0.5, 0.7, 0.6, None])
+    assert (round(m, 9), round(s, 9), n) == (0.6, 0.1, 3)
+    # The scenes differ a lot, the change is small but the same on every seed: significant when paired.
+    a = {0: 0.30, 1: 0.80, 2: 0.55}
+    b = {0: 0.28, 1: 0.79, 2: 0.525}
+    d = paired_difference(a, b)
+    assert d["n"] == 3 and d["mean"] == pytest.approx(0.055 / 3) and d["significant"]
+    # A change whose sign flips between seeds is noise; missing seeds are left out of the pairs.
+    d = paired_difference({0: 0.5, 1: 0.6, 2: 0.7}, {0: 0.45, 1: 0.66, 3: 0.1})
+    assert d["n"] == 2 and d["significant"] is False and set(d["per_seed"]) == {0, 1}
+    assert paired_difference({0: 1.0}, {0: 0.5})["significant"] is None  # one pair: no spread, no verdict
+
+
+# ------------------------------------------------------------------------------------------ report
+def _run(seed, **kw):
+    """A fabricated run record (what runner._record writes)."""
+    rec = {"scene": "indoor", "noise": "moderate", "scene_depth": "sensor", "pose_noise": [0.0, 0.0],
+           "preset": "fast", "seed": seed, "variant": "all", "inputs": "RGB + depth", "train_seconds": 500.0 + seed,
+           "steps": 1500, "peak_rss_mb": 800.0, "render_ms_per_2048_rays": 80.0, "psnr": 30.0, "miou": 0.8,
+           "pq_scene": 0.6, "sq_scene": 0.8, "rq_scene": 0.7, "pseudo_labels": {"miou": 0.6, "pq_scene": 0.4},
+           "points3d": {"fscore": 0.95, "miou": 0.7, "instance_recall": 0.9, "n_instances": 10,
+                        "n_pred_instances": 14}}
+    rec.update(kw)
+    return rec
+
+
+def _results(seeds=(0, 1, 2)):
+    spread = {0: -0.05, 1: 0.05, 2: 0.0}
+    runs = []
+    for s in seeds:
+        runs.append(_run(s, miou=0.8 + spread[s]))
+        runs.append(_run(s, scene_depth="none", inputs="RGB", miou=0.6 + spread[s], pq_scene=0.45 + spread[s],
+                         points3d={"fscore": 0.4, "miou": 0.3}))
+        runs.append(_run(s, noise="view-correlated", pq_scene=0.5 + spread[s]))
+    label = [_run(s, noise=n, pq_scene=q + spread[s], pseudo_labels={"miou": 0.9 - q, "pq_scene": q - 0.1})
+             for n, q in (("clean", 0.8), ("moderate", 0.6), ("hard", 0.5), ("view-correlated", 0.45)) for s in seeds]
+    # Pose noise costs 0.1 PQ^scene on every seed at 0.5 deg / 2 cm; refinement wins 0.06 of it back.
+    pose = [_run(s, pose_noise=[d, c], variant=v, pq_scene=0.6 + spread[s] - cost + gain)
+            for (d, c), cost in (((0.0, 0.0), 0.0), ((0.5, 2.0), 0.1), ((1.0, 5.0), 0.2))
+            for v, gain in (("all", 0.0), ("pose-refinement", 0.06 if c else 0.0)) for s in seeds]
+    ablation = []
+    for mode in ("steps", "time"):
+        for variant, miou, pq in (("base", 0.1, 0.05), ("base+S", 0.5, 0.4), ("base+S+L_seg", 0.55, 0.45),
+                                  ("base+S+L_feat", 0.45, 0.41), ("all", 0.5, 0.4)):
+            for s in seeds:
+                # +L_feat: mIoU down on every seed (opposite to the paper); PQ^scene: +0.01 +- 0.05 (noise).
+                jitter = {"base+S+L_feat": {0: 0.06, 1: -0.05, 2: 0.02}}.get(variant, {}).get(s, 0.0)
+                ablation.append(_run(s, variant=variant, mode=mode, miou=miou + spread[s], pq_scene=pq + jitter,
+                                     budget_seconds=600.0 if mode == "time" else None))
+    bounded = [_run(s, scene="outdoor", variant=v, psnr=p + spread[s]) for v, p in (("bounded", 27.0), ("all", 35.0))
+               for s in seeds]
+    return {"machine": {"cpu": "test cpu", "cpus_available": 2, "torch": "x", "torch_threads": 2, "cuda": None},
+            "created": "2026-11-23T00:00:00", "quick": False, "seeds": list(seeds), "runs": runs,
+            "curves": {"label_noise": label, "pose_noise": pose}, "ablation": ablation,
+            "parameterisation": bounded, "skipped": [], "scaling": [], "export": None, "profile": None}
+
+
+def test_report_is_written_from_the_results(tmp_path):
+    results = _results()
+    results["summary"] = tables.summarize(results)
+    write_reports(results, BenchConfig(out=tmp_path, docs_dir=tmp_path / "docs"))
     md = (tmp_path / "docs" / "benchmarks.md").read_text()
-    assert results["machine"]["cpu"] in md and "| indoor | hard | RGB + depth | fast |" in md
-    assert "| indoor | moderate | RGB | fast |" in md
-    assert "## Where the time goes" in md and "`step.backward`" in md
-    assert "## Export: labelled points" in md
-    # Resumable: a second run reuses every cached measurement (fast, same numbers).
-    proc2 = subprocess.run(cmd, capture_output=True, text=True, timeout=300)
-    assert proc2.returncode == 0
-    again = json.loads((out / "results.json").read_text())
-    assert [r["train_seconds"] for r in again["runs"]] == [r["train_seconds"] for r in runs]
-    # --reevaluate: metrics are computed again from the cached runs; training and render timing are kept.
-    for path in (out / "cache").glob("run_*.json"):
-        if not path.name.endswith(".spec.json"):
-            cached = json.loads(path.read_text())
-            cached["metrics"]["points3d"]["miou"] = -1.0  # stale: must be replaced
-            path.write_text(json.dumps(cached))
-    proc3 = subprocess.run(cmd + ["--reevaluate", "--no-ablation", "--no-scaling", "--no-profile"],
-                           capture_output=True, text=True, timeout=600)
-    assert proc3.returncode == 0, proc3.stderr[-3000:]
-    third = json.loads((out / "results.json").read_text())
-    assert [r["train_seconds"] for r in third["runs"]] == [r["train_seconds"] for r in runs]
-    assert [r["render_ms_per_2048_rays"] for r in third["runs"]] == [r["render_ms_per_2048_rays"] for r in runs]
-    for r in third["runs"]:
-        assert 0 <= r["points3d"]["miou"] <= 1 and r["points3d"]["miou_strict"] is not None
-    assert all("reevaluated" in json.loads(p.read_text()) for p in (out / "cache").glob("run_*_s0.json"))
-    assert not list((out / "cache").glob("*.eval.json"))
-    assert "`lift3d bench --reevaluate`" in (tmp_path / "docs" / "benchmarks.md").read_text()
+    assert "scene seeds 0, 1, 2" in md and "not used for tuning" in md
+    # Mean ± standard deviation over the seeds, per row; the RGB row says so.
+    assert "| indoor | moderate | RGB + depth | fast | 501 ± 1 |" in md
+    assert "0.800 ± 0.050 (0.600)" in md and "| indoor | moderate | RGB | fast |" in md
+    assert "0.90 ± 0.00 of 10 | 14 ± 0 |" in md  # objects found (of how many GT objects), instances exported
+    # Margins over the pseudo-labels and what depth maps buy, as sentences with the numbers in them.
+    assert "lifting raises mIoU over its pseudo-labels significantly in 2 of 3 rows" in md
+    assert "3D F-score is 0.950 against 0.400 from RGB" in md
+    # Noise curves: the picture, the label table and the pose-noise cost, paired by seed.
+    assert "![PQ^scene and mIoU against label noise and pose noise](images/bench_noise_curves.png)" in md
+    assert (tmp_path / "docs" / "images" / "bench_noise_curves.png").is_file()
+    assert "| clean | 0.800 ± 0.000 | 0.100 ± 0.000 |" in md
+    assert "0.5°/2 cm of pose noise costs 0.100 PQ^scene against none (paired over 3 seeds" in md
+    assert "pose refinement changes PQ^scene by +0.060" in md
+    # Ablation: each step as a paired difference; a consistent change agrees or not, a flipping one is noise.
+    assert "| base+S → base+S+L_feat | equal steps | -0.050 ± 0.000 (n=3) |" in md
+    line = next(x for x in md.splitlines() if x.startswith("| base+S → base+S+L_feat | equal steps"))
+    assert line.endswith("| up, up, up | **opposite**, within noise, within noise |")
+    line = next(x for x in md.splitlines() if x.startswith("| base → base+S | equal time"))
+    assert line.endswith("| agrees, agrees, within noise |")
+    assert "Equal steps: 4 changes go the paper's way significantly" in md
+    assert "| unbounded (contracted) |" in md and "PSNR +8.000 ± 0.000 (n=3)" in md
+    # Per-seed values are kept: results.csv has one row per run and section.
+    rows = list(csv.DictReader((tmp_path / "results.csv").open()))
+    assert len(rows) == sum(len(v) for v in (results["runs"], results["ablation"], results["parameterisation"],
+                                              *results["curves"].values()))
+    assert {r["section"] for r in rows} == {"runs", "curves/label_noise", "curves/pose_noise", "ablation",
+                                             "parameterisation"}
+    summary = json.loads((tmp_path / "results.json").read_text())["summary"]
+    row = summary["runs"][0]
+    assert row["seeds"] == [0, 1, 2]
+    assert row["metrics"]["miou"]["per_seed"] == pytest.approx({"0": 0.75, "1": 0.85, "2": 0.8})
+
+
+def test_inputs_column_is_what_the_run_records():
+    """The run's own record wins (a run may say `RGB + SfM points`); older runs: from depth supervision."""
+    assert run_inputs({"inputs": "RGB + SfM points", "depth_supervision": False}) == "RGB + SfM points"
+    assert run_inputs({"inputs": None, "depth_supervision": True}) == "RGB + depth"
+    assert run_inputs({"depth_supervision": False}) == "RGB"
+    rows = tables.group_rows([_run(0, inputs="RGB + SfM points"), _run(1, inputs="RGB + SfM points")], ["scene"])
+    assert rows[0]["inputs"] == "RGB + SfM points"
+
+
+def test_tuning_seeds_are_called_development_numbers():
+    assert "not used for tuning" in tables.seed_note([0, 1, 2])
+    note = tables.seed_note([0, 1, 7])
+    assert "tuning seeds" in note and "not used for tuning" not in note
+
+
+# ------------------------------------------------------------------------------------------ plan and flags
+def test_plan_lists_every_run_once_with_its_sections_and_an_estimate(tmp_path, capsys):
+    cfg = BenchConfig(out=tmp_path, seeds=(100, 101))
+    jobs = plan_jobs(cfg)
+    caches = {j.cache for j in jobs}
+    # presets: 2 scenes x 2 inputs x 2 noises + balanced 2 noises; curves: clean, hard + 2 pose levels; ablation
+    # 5 x 2 modes; bounded: 1 (+ the shared unbounded run) -- per seed.
+    assert len(caches) == 2 * (8 + 2 + 2 + 2 + 10 + 1)
+    assert main(["bench", "--plan", "--out", str(tmp_path), "--seeds", "100,101"]) == 0
+    out = capsys.readouterr().out
+    assert "indoor_s100_moderate_fast_all (presets, label-noise curve, pose-noise curve, export)" in out
+    assert "50 training runs: 0 cached, 50 to do" in out and " h of training" in out
+    # A cached run is listed as such and no longer counted; its measured time calibrates the estimates.
+    first = next(j for j in jobs if j.name == "run_indoor_s100_moderate_fast_all")
+    first.cache.parent.mkdir(parents=True)
+    first.cache.write_text(json.dumps({"steps": 1500, "train_seconds": 3000.0,
+                                       "metrics": {"seconds": 100.0, "points3d": {"fscore": 0.9}}}))
+    assert main(["bench", "--plan", "--out", str(tmp_path), "--seeds", "100,101", "--only", "presets"]) == 0
+    out = capsys.readouterr().out
+    assert "cached       0.0  indoor_s100_moderate_fast_all (presets)" in out
+    assert "to do       51.7  indoor_s101_moderate_fast_all" in out  # 1500 x 2 s + 100 s
+    assert "20 training runs: 1 cached, 19 to do" in out and not list(tmp_path.glob("scenes"))
+    # --quick is a smoke test: by default it trains on tuning seeds, never on the reserved ones.
+    assert main(["bench", "--plan", "--quick", "--out", str(tmp_path / "quick"), "--only", "presets"]) == 0
+    out = capsys.readouterr().out
+    assert "indoor_s100_moderate_fast_all" in out and "indoor_s101_" in out and "_s0_" not in out
+
+
+@pytest.mark.parametrize("argv, message", [
+    (["--only", "presets,speed"], "--only: 'speed' is not a section"),
+    (["--seeds", "0,0"], "--seeds: scene seeds must be distinct"),
+    (["--inputs", "depth"], "--inputs: 'depth' is not one of"),
+    (["--ablation-budget", "0"], "--ablation-budget"),
+])
+def test_bad_flags_are_one_line_errors(argv, message, tmp_path, capfd):
+    assert main(["bench", "--plan", "--out", str(tmp_path), *argv]) == 2
+    err = capfd.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and message in err[0], err
 
 
 def test_reevaluate_names_a_cached_run_whose_folder_is_gone(tmp_path, capfd, monkeypatch):
-    from lift3d.cli.main import main
-
     monkeypatch.setenv("LIFT3D_NO_PROGRESS", "1")
     out = tmp_path / "bench"
     (out / "cache").mkdir(parents=True)
-    cached = out / "cache" / "run_indoor_fast_s0.json"
+    cached = out / "cache" / "run_indoor_s100_moderate_fast_all.json"
     cached.write_text(json.dumps({"run": str(tmp_path / "gone"), "metrics": {}}))
-    rc = main(["bench", "--quick", "--scenes", "indoor", "--presets", "fast", "--no-hard", "--no-rgb-only",
-               "--no-ablation", "--no-scaling", "--no-export", "--no-profile", "--reevaluate", "--out", str(out),
+    rc = main(["bench", "--quick", "--scenes", "indoor", "--presets", "fast", "--seeds", "100", "--only", "presets",
+               "--inputs", "rgb+depth", "--noises", "moderate", "--reevaluate", "--out", str(out),
                "--docs-dir", str(tmp_path / "docs")])
     err = capfd.readouterr().err.strip().splitlines()
-    assert rc == 2 and len(err) == 1 and "run_indoor_fast_s0.json" in err[0] and "is gone" in err[0], err
+    assert rc == 2 and len(err) == 1 and cached.name in err[0] and "is gone" in err[0], err
     assert json.loads(cached.read_text())["run"] == str(tmp_path / "gone")  # the cache is left as it was
+
+
+# ------------------------------------------------------------------------------------------ end to end
+def test_bench_quick_one_row_over_two_seeds(tmp_path, monkeypatch):
+    """One preset-table row trained on two scene seeds (tiny scenes, few steps): the report shows mean ± std,
+    the per-seed values are kept, a second run reuses the cache, --reevaluate recomputes the metrics only,
+    and the export of the first indoor run is timed. (The other sections: tests/test_bench_sections.py.)"""
+    monkeypatch.setenv("LIFT3D_NO_PROGRESS", "1")
+    out, docs = tmp_path / "bench", tmp_path / "docs"
+
+    def bench(seeds: str, only: str, *extra: str) -> int:
+        return main(["bench", "--quick", "--scenes", "indoor", "--presets", "fast", "--seeds", seeds, "--noises",
+                     "moderate", "--inputs", "rgb+depth", "--only", only, "--out", str(out), "--docs-dir", str(docs),
+                     *extra])
+
+    assert bench("100,101", "presets,export") == 0
+    results = json.loads((out / "results.json").read_text())
+    assert results["machine"]["cpu"] and results["machine"]["torch_threads"] >= 1 and results["seeds"] == [100, 101]
+    runs = results["runs"]
+    assert sorted(r["seed"] for r in runs) == [100, 101]
+    for r in runs:
+        assert (r["scene_depth"], r["depth_supervision"], r["inputs"]) == ("sensor", True, "RGB + depth")
+        assert r["train_seconds"] > 0 and r["peak_rss_mb"] > 100 and r["render_ms_per_2048_rays"] > 0
+        assert 0 <= r["miou"] <= 1 and 0 <= r["pq_scene"] <= 1 and r["psnr"] > 5
+        assert r["pseudo_labels"]["miou"] is not None and r["points3d"]["fscore"] is not None
+        assert r["points3d"]["n_pred_instances"] is not None
+    row = results["summary"]["runs"][0]
+    assert row["seeds"] == [100, 101] and row["metrics"]["miou"]["std"] is not None
+    assert set(row["metrics"]["miou"]["per_seed"]) == {"100", "101"}
+    rows = list(csv.DictReader((out / "results.csv").open()))
+    assert sorted(r["seed"] for r in rows) == ["100", "101"]
+    ex = results["export"]
+    assert ex["points"] > 0 and ex["seconds"] > 0 and ex["preset"] == "fast"
+    md = (docs / "benchmarks.md").read_text()
+    line = next(x for x in md.splitlines() if x.startswith("| indoor | moderate | RGB + depth | fast |"))
+    miou = runs[0]["miou"], runs[1]["miou"]
+    assert f"{(miou[0] + miou[1]) / 2:.3f} ± {abs(miou[0] - miou[1]) / 2 ** 0.5:.3f}" in line
+    assert "**Seeds ≥ 5 are tuning seeds**" in md and "## Export: labelled points" in md
+    assert (out / "pareto.png").is_file() and (docs / "images" / "bench_pareto.png").is_file()
+    # Resumable: a second run reuses every cached measurement (same numbers).
+    assert bench("100,101", "presets,export") == 0
+    again = json.loads((out / "results.json").read_text())
+    assert [r["train_seconds"] for r in again["runs"]] == [r["train_seconds"] for r in runs]
+    # --reevaluate: metrics computed again from the cached run; training and render timing are kept.
+    path = out / "cache" / "run_indoor_s100_moderate_fast_all.json"
+    cached = json.loads(path.read_text())
+    cached["metrics"]["points3d"]["miou"] = -1.0  # stale: must be replaced
+    path.write_text(json.dumps(cached))
+    assert bench("100", "presets", "--reevaluate") == 0
+    third = json.loads((out / "results.json").read_text())
+    (r,) = third["runs"]
+    assert (r["train_seconds"], r["render_ms_per_2048_rays"]) == (runs[0]["train_seconds"],
+                                                                  runs[0]["render_ms_per_2048_rays"])
+    assert 0 <= r["points3d"]["miou"] <= 1 and r["reevaluated"]
+    assert not list((out / "cache").glob("*.eval.json"))
+    assert "`lift3d bench --reevaluate`" in (docs / "benchmarks.md").read_text()
 
 
 def test_under_load_measures_step_and_render_alone_and_beside_a_busy_neighbour(tmp_path):

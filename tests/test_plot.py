@@ -386,10 +386,31 @@ def test_pareto_and_scaling_charts_through_the_cli(tmp_path):
     # The pseudo-label baseline is drawn (the crimson dotted line's colour is in the Pareto chart).
     img = iio.imread(bench / "pareto.png")[..., :3].astype(int)
     assert (np.abs(img - np.array([220, 20, 60])).sum(-1) < 30).sum() > 50
+    assert not (bench / "noise_curves.png").exists()  # no curve runs: not drawn
     with pytest.raises(InputError, match="'runs' is missing"):
         vbench.plot_pareto({"runs": []}, tmp_path / "x.png")
     with pytest.raises(InputError, match=r"scaling\[0\]"):
         vbench.plot_scaling({"scaling": [{"value": 3}]}, tmp_path / "x.png")
+
+
+def test_noise_curves_chart(tmp_path):
+    def run(seed, noise="moderate", pose=(0.0, 0.0), variant="all", pq=0.6):
+        return {"seed": seed, "noise": noise, "pose_noise": list(pose), "variant": variant, "miou": pq + 0.2,
+                "pq_scene": pq + 0.02 * seed, "pseudo_labels": {"miou": 0.5, "pq_scene": 0.3}}
+    curves = {"label_noise": [run(s, n, pq=q) for n, q in (("hard", 0.5), ("clean", 0.8), ("moderate", 0.6))
+                              for s in (0, 1)],
+              "pose_noise": [run(s, pose=p, variant=v, pq=0.6 - 0.1 * p[0] + (0.05 if v != "all" else 0))
+                             for p in ((0.0, 0.0), (1.0, 5.0)) for v in ("all", "pose-refinement") for s in (0, 1)]}
+    path = vbench.plot_noise_curves({"machine": {"cpu": "test cpu"}, "curves": curves}, tmp_path / "curves.png")
+    covered, spread = _not_blank(iio.imread(path))
+    assert covered > 0.05 and spread > 20
+    img = iio.imread(path)[..., :3].astype(int)
+    for color in ([220, 20, 60], [44, 160, 44]):  # the pseudo-label and the pose-refinement lines
+        assert (np.abs(img - np.array(color)).sum(-1) < 30).sum() > 50, color
+    only_labels = vbench.plot_noise_curves({"curves": {"label_noise": curves["label_noise"]}}, tmp_path / "l.png")
+    assert _not_blank(iio.imread(only_labels))[0] > 0.03
+    with pytest.raises(InputError, match="no label_noise or pose_noise runs"):
+        vbench.plot_noise_curves({"curves": {}}, tmp_path / "x.png")
 
 
 # ------------------------------------------------------------------------------------------ CLI

@@ -616,3 +616,33 @@ def test_a_category_colour_that_is_not_rgb_is_a_one_line_error(tmp_path):
     ok = [{"id": 3, "name": "chair", "isthing": 1}]
     assert parse_categories(ok, tmp_path)[0].color == parse_categories(ok, tmp_path)[0].color  # seeded by id
     assert convert_categories(ok, tmp_path)[0].isthing
+
+
+def test_true_poses_replace_the_written_ones_and_their_error_is_measured(tiny_scene: Path) -> None:
+    from scipy.spatial.transform import Rotation
+
+    path = tiny_scene / "transforms.json"
+    meta = json.loads(path.read_text())
+    # The written poses of frames 1 and 5 are the true ones turned by 2 degrees (about different axes, in the
+    # camera frame) and moved by 3 cm; the others have no true pose.
+    written = {}
+    for k, axis in ((1, [0, 0, 1]), (5, [1, 0, 0])):
+        true = np.asarray(meta["frames"][k]["transform_matrix"], float)
+        noisy = true.copy()
+        noisy[:3, :3] = true[:3, :3] @ Rotation.from_rotvec(np.radians(2.0) * np.asarray(axis, float)).as_matrix()
+        noisy[:3, 3] += [0.03, 0.0, 0.0] if k == 1 else [0.0, 0.0, -0.03]
+        meta["frames"][k]["gt_transform_matrix"] = true.tolist()
+        meta["frames"][k]["transform_matrix"] = noisy.tolist()
+        written[k] = noisy
+    path.write_text(json.dumps(meta))
+    scene = load_scene(tiny_scene)
+    assert scene.true_pose_frames() == [1, 5] and scene.true_pose_frames([0, 5]) == [5]
+    err = scene.pose_error()
+    assert err["frames"] == 2 and err["rms_deg"] == pytest.approx(2.0, abs=1e-6)
+    assert err["rms_translation"] == pytest.approx(0.03, abs=1e-9)
+    assert scene.pose_error([0, 2]) is None
+    fixed = scene.at_true_poses([5])
+    assert np.allclose(fixed.cameras.c2w[5], scene.frames[5].gt_c2w)
+    assert np.array_equal(fixed.cameras.c2w[1], written[1])  # not asked for: keeps its written pose
+    assert np.array_equal(scene.cameras.c2w[5], written[5])  # the scene itself is unchanged
+    assert np.allclose(scene.at_true_poses().cameras.c2w[1], scene.frames[1].gt_c2w)

@@ -1,16 +1,29 @@
-"""``lift3d bench``: the speed/accuracy trade of the presets, the paper's ablation, and how cost scales.
+"""``lift3d bench``: the speed/accuracy trade of the presets over several scenes, robustness to label and pose
+noise, the paper's ablation, and how cost scales.
 
-Everything is measured on this machine in one benchmark run (the report names the CPU and thread count):
+Everything is measured on this machine in one benchmark run (the report names the CPU and thread count).
+Every accuracy row is trained once per **scene seed** (default 0, 1, 2: each a different synthetic room or
+street, camera path and noise, from ``lift3d synth``) and reported as mean ± standard deviation over the
+seeds, with the per-seed values kept in ``results.json`` / ``results.csv``. Seeds 0–4 are reserved for these
+numbers: nothing was tuned on them (tuning used seeds ≥ 5), and the report says so only when that holds.
 
-* **presets** — each preset trained on synthetic scenes (``lift3d synth``, moderate noise, plus one indoor
-  scene with ``--noise hard``): training wall time and peak memory, ms to render 2048 rays, PSNR, mIoU,
-  PQ^scene/SQ/RQ (both ``min_area`` variants), 3D F-score and point mIoU of the export, and the same 2D
-  metrics of the pseudo-labels for the same frames;
-* **ablation** (paper Table 6) — Base (plain MLP field), +S (the voxel-grid model), +L_seg, +L_feat, all; the
-  same wall-time budget for every variant (the learning-rate schedule follows the budget);
+Sections (``--only`` picks some; ``--plan`` lists every run with an estimated time and trains nothing):
+
+* **presets** — indoor and outdoor × inputs {RGB only, RGB + sensor depth} × label noise {moderate,
+  view-correlated} at the first preset (``fast``), and the further presets (``balanced``) for indoor
+  RGB + depth: training wall time and peak memory, ms to render 2048 rays, PSNR, mIoU, PQ^scene/SQ/RQ, 3D
+  F-score and point mIoU of the export, objects found and instances exported, and the same 2D metrics of the
+  pseudo-labels for the same frames;
+* **curves** — PQ^scene and mIoU of the lifted field and of its pseudo-labels as label noise grows (clean →
+  moderate → hard → view-correlated) and as pose noise grows (0, 0.5°/2 cm, 1°/5 cm; test views scored at
+  their true poses), indoor, first preset, RGB + depth;
+* **ablation** (paper Table 6) — Base (plain MLP field), +S (the voxel-grid model), +L_seg, +L_feat, all, on
+  RGB only, at equal steps and at equal wall time; each change's sign is tested with paired differences
+  over the seeds (significant when the mean is more than 2 standard errors from 0);
+* **bounded** — the outdoor scene with a bounded field, against the contracted one of the preset table;
 * **scaling** — training-step and render time and peak memory against image resolution, number of views,
   instance channels V and semantic classes U;
-* **export** — time and peak memory of a 1M-point labelled export of the first preset's indoor run;
+* **export** — time and peak memory of a 1M-point labelled export of the first indoor run;
 * **profile** — where one training step and one 2048-ray render of the first preset spend their time
   (``torch.profiler``: named stages and the operators with the most self time);
 * **under load** — the same training step and render alone and beside one busy 2-thread process, and the
@@ -18,18 +31,20 @@ Everything is measured on this machine in one benchmark run (the report names th
 
 Each measurement runs in its own process (:mod:`lift3d.bench.worker`) and is cached as JSON under
 ``OUT/cache``: an interrupted benchmark resumes where it stopped. Results: ``OUT/results.json``,
-``OUT/results.csv``, ``OUT/pareto.png``, ``OUT/scaling.png``, ``OUT/benchmarks.md`` (and, with
-``docs_dir``, ``docs/benchmarks.md`` plus its pictures).
+``OUT/results.csv``, ``OUT/pareto.png``, ``OUT/noise_curves.png``, ``OUT/scaling.png``, ``OUT/benchmarks.md``
+(and, with ``docs_dir``, ``docs/benchmarks.md`` plus its pictures).
 """
 
 from __future__ import annotations
 
 import csv
+import dataclasses
 import datetime as _dt
 import io
 import json
 import os
 import platform
+import statistics
 import subprocess
 import sys
 from dataclasses import dataclass, field
@@ -39,13 +54,16 @@ from typing import Any
 import torch
 
 from lift3d import __version__
+from lift3d.bench import tables, worker
+from lift3d.bench.tables import REPORT_SEEDS
 from lift3d.errors import InputError
 from lift3d.field import native
+from lift3d.model.config import load_config
 from lift3d.synth import make_scene
 from lift3d.utils.atomic import write_json_atomic, write_text_atomic
 from lift3d.utils.device import available_cpus, default_threads
 from lift3d.utils.progress import progress_bar
-from lift3d.viz.bench import plot_pareto, plot_scaling
+from lift3d.viz.bench import plot_noise_curves, plot_pareto, plot_scaling
 
 #: Ablation variants of the paper's Table 6: name → overrides.
 ABLATION = {
@@ -63,6 +81,26 @@ PAPER_ABLATION = {
     "base": (58.7, 55.4, 29.5), "base+S": (60.6, 65.6, 32.0), "base+S+L_seg": (64.6, 76.7, 32.8),
     "base+S+L_feat": (62.0, 71.3, 32.4), "all": (65.2, 79.2, 32.7),
 }
+#: Sections of the benchmark (``--only``) and the :class:`BenchConfig` switch of each.
+SECTIONS = {"presets": "preset_table", "curves": "curves", "ablation": "ablation", "bounded": "bounded_check",
+            "scaling": "scaling", "export": "export", "profile": "profile", "under-load": "under_load"}
+#: Inputs of a preset-table row → the ``lift3d synth --depth`` of its scenes, and the label the table shows
+#: until the run itself says what it trained on.
+INPUTS = {"rgb": "none", "rgb+depth": "sensor"}
+#: Label noise and pose noise (degrees, centimetres) of the noise curves, from none to most.
+LABEL_NOISE_LEVELS = ("clean", "moderate", "hard", "view-correlated")
+POSE_NOISE_LEVELS = ((0.0, 0.0), (0.5, 2.0), (1.0, 5.0))
+#: Seconds per training step and per evaluation on a 2-core CPU (docs/benchmarks.md of 2026-11-23): what
+#: ``--plan`` assumes until finished runs of the same kind are in the cache. An evaluation without the 3D
+#: metrics (ablation and label-noise runs: their tables show 2D metrics only) renders the test views and
+#: scores them; the labelled export the 3D metrics score is most of a full evaluation.
+REFERENCE_STEP_SECONDS = {"fast": 0.36, "balanced": 0.54, "quality": 1.67, "mlp": 2.4, "quick": 0.15}
+REFERENCE_EVAL_SECONDS = {"fast": 60.0, "balanced": 70.0, "quality": 90.0, "quick": 10.0}
+REFERENCE_EVAL_2D_SECONDS = {"fast": 15.0, "balanced": 20.0, "quality": 25.0, "quick": 2.0}
+#: Minutes of the measurements that are not training runs (2-core CPU): scaling (16 points of a few timed
+#: steps and renders), the 1M-point export, the profile, and the step and render timings alone and beside a
+#: busy neighbour.
+REFERENCE_EXTRA_MINUTES = {"scaling": 25.0, "export": 2.0, "profile": 2.0, "under load": 2.0}
 
 # Tiny settings for --quick: every code path, seconds per run.
 _QUICK_TRAIN = {
@@ -70,9 +108,10 @@ _QUICK_TRAIN = {
               "mlp": {"width": 64, "depth": 3}},
     "sampling": {"proposal_resolutions": [24], "proposal_samples": [32], "num_samples": 16},
     "data": {"images_per_batch": 4, "rays_per_image": 64, "patch_size": 8},
-    "optim": {"steps": 40, "warmup_steps": 5},
+    "optim": {"steps": 10, "warmup_steps": 2},
     "trainer": {"eval_every": 0, "checkpoint_every": 0},
 }
+_QUICK_SCENE = {"n_views": 12, "width": 40, "height": 40}
 
 
 @dataclass
@@ -81,25 +120,73 @@ class BenchConfig:
 
     out: Path = Path("bench_out")
     scenes: tuple[str, ...] = ("indoor", "outdoor")
-    presets: tuple[str, ...] = ("fast", "balanced", "quality")
-    seeds: tuple[int, ...] = (0,)
-    hard_noise: bool = True
-    rgb_only: bool = True
+    #: The first preset makes every row; the others only the indoor RGB + depth rows.
+    presets: tuple[str, ...] = ("fast", "balanced")
+    seeds: tuple[int, ...] = REPORT_SEEDS
+    #: Label noise of the preset table's scenes.
+    noises: tuple[str, ...] = ("moderate", "view-correlated")
+    #: Inputs of the preset table's rows (keys of INPUTS).
+    inputs: tuple[str, ...] = ("rgb", "rgb+depth")
+    label_noise_levels: tuple[str, ...] = LABEL_NOISE_LEVELS
+    pose_noise_levels: tuple[tuple[float, float], ...] = POSE_NOISE_LEVELS
+    #: Overrides that turn per-frame pose refinement on: the pose-noise curve is drawn with them too.
+    #: None (or {}) draws the curve without pose refinement only.
+    pose_refinement: dict | None = None
+    preset_table: bool = True
+    curves: bool = True
     bounded_check: bool = True
     ablation: bool = True
-    ablation_budget: float = 300.0
+    #: Equal-steps ablation: every variant trains this many steps (the fast preset's schedule).
+    ablation_steps: int = 1500
+    #: Equal-time ablation: every variant trains this many seconds (the schedule follows the budget).
+    ablation_budget: float = 600.0
     scaling: bool = True
     export: bool = True
     profile: bool = True
     under_load: bool = True
-    #: Re-run the evaluation (not the training) of cached preset, hard-noise, RGB-only and bounded runs, and
-    #: the export timing: after a change to the eval or export code. Ablation runs keep their cached metrics
-    #: (2D only in the report) and the scaling and profile jobs measure training, which did not change.
+    #: Re-run the evaluation (not the training) of cached preset, curve and bounded runs, and the export
+    #: timing: after a change to the eval or export code. Ablation runs keep their cached metrics and the
+    #: scaling and profile jobs measure training, which did not change.
     reevaluate: bool = False
     quick: bool = False
     docs_dir: Path | None = None
     progress: bool = True
     extra: dict = field(default_factory=dict)
+
+    def check(self) -> "BenchConfig":
+        """Bad settings as one-line errors naming the flag."""
+        if not self.seeds:
+            raise InputError("--seeds", "give at least one scene seed")
+        if any(int(s) < 0 for s in self.seeds) or len(set(self.seeds)) != len(self.seeds):
+            raise InputError("--seeds", f"scene seeds must be distinct and non-negative, got {list(self.seeds)}")
+        bad = [i for i in self.inputs if i not in INPUTS]
+        if bad:
+            raise InputError("--inputs", f"{bad[0]!r} is not one of {', '.join(INPUTS)}")
+        if not self.presets:
+            raise InputError("--presets", "give at least one preset")
+        if self.ablation_steps < 1:
+            raise InputError("--ablation-steps", f"must be positive, got {self.ablation_steps}")
+        if self.ablation_budget <= 0:
+            raise InputError("--ablation-budget", f"must be positive seconds, got {self.ablation_budget}")
+        return self
+
+
+@dataclass
+class Job:
+    """One training run of the benchmark: where its result goes and how to make it."""
+
+    section: str  # key of results: runs, label_noise, pose_noise, ablation, parameterisation, or "" (a dependency)
+    tags: dict  # what its record is labelled with (scene, noise, inputs, preset, seed, variant, ...)
+    scene: dict  # lift3d synth arguments: kind, seed, noise, depth, pose_noise
+    overrides: dict
+    cache: Path
+    #: Compute the 3D metrics (the labelled export scored against gt/points.ply): only for runs a table
+    #: with 3D columns shows (presets, pose-noise curve, bounded, the export's run); see :func:`plan_jobs`.
+    points3d: bool = True
+
+    @property
+    def name(self) -> str:
+        return self.cache.stem
 
 
 def machine_info() -> dict:
@@ -126,13 +213,19 @@ def machine_info() -> dict:
     }
 
 
-def _worker(spec: dict, out: Path) -> dict:
-    """Run one measurement in a fresh process (cached: an existing result is reused)."""
+def _worker(spec: dict, out: Path, in_process: bool = False) -> dict:
+    """Run one measurement in a fresh process (cached: an existing result is reused).
+
+    ``in_process`` runs it in this process instead (``--quick``: saves importing torch and Open3D for every
+    tiny run; peak memory then is this process's)."""
     if out.is_file():
         return json.loads(out.read_text())
     out.parent.mkdir(parents=True, exist_ok=True)
     spec_path = out.with_suffix(".spec.json")
     write_json_atomic(spec_path, spec)
+    if in_process:
+        worker.main([str(spec_path), str(out)])
+        return json.loads(out.read_text())
     env = dict(os.environ, LIFT3D_NO_PROGRESS="1")
     proc = subprocess.run([sys.executable, "-m", "lift3d.bench.worker", str(spec_path), str(out)],
                           capture_output=True, text=True, env=env)
@@ -142,7 +235,7 @@ def _worker(spec: dict, out: Path) -> dict:
     return json.loads(out.read_text())
 
 
-def _reevaluate(path: Path, train_spec: dict) -> dict:
+def _reevaluate(path: Path, eval_spec: dict, in_process: bool = False) -> dict:
     """Evaluate a cached training run again (fresh process) and store the new metrics in its cache file.
 
     The render timing is not measured again: it belongs with the training-time measurement (same process
@@ -151,9 +244,10 @@ def _reevaluate(path: Path, train_spec: dict) -> dict:
     if not (Path(cached["run"]) / "config.yml").is_file():
         raise InputError(path, f"its run folder {cached['run']} is gone; delete this cache file to train the run "
                                "again, or run without --reevaluate")
-    spec = {"kind": "evaluate", "run": cached["run"], "num_points": train_spec["num_points"], "timing_repeats": 0}
+    spec = {"kind": "evaluate", "run": cached["run"], "num_points": eval_spec["num_points"], "timing_repeats": 0,
+            "points3d": eval_spec.get("points3d", True)}
     fresh_path = path.with_name(path.stem + ".eval.json")
-    fresh = _worker(spec, fresh_path)
+    fresh = _worker(spec, fresh_path, in_process=in_process)
     for key in ("render_ms_per_2048_rays", "render_timing"):
         fresh["metrics"][key] = cached["metrics"].get(key)
     cached["metrics"] = fresh["metrics"]
@@ -163,14 +257,34 @@ def _reevaluate(path: Path, train_spec: dict) -> dict:
     return cached
 
 
-def _scene(cfg: BenchConfig, kind: str, seed: int, noise: str, **size) -> Path:
-    name = f"{kind}_s{seed}_{noise}" + ("_" + "_".join(f"{k}{v}" for k, v in sorted(size.items())) if size else "")
-    root = cfg.out / "scenes" / name
+def _scene_name(kind: str, seed: int, noise: str, depth: str = "sensor", pose_noise=(0.0, 0.0), **size) -> str:
+    """Folder name of a benchmark scene: what makes it differ from the default, e.g.
+    ``indoor_s0_moderate``, ``indoor_s1_view-correlated_depthnone``, ``indoor_s2_moderate_pose0.5deg2cm``."""
+    name = f"{kind}_s{seed}_{noise}"
+    if depth != "sensor":
+        name += f"_depth{depth}"
+    if any(pose_noise):
+        name += f"_pose{pose_noise[0]:g}deg{pose_noise[1]:g}cm"
+    return name + ("_" + "_".join(f"{k}{v}" for k, v in sorted(size.items())) if size else "")
+
+
+def _scene(cfg: BenchConfig, kind: str, seed: int, noise: str, depth: str = "sensor", pose_noise=(0.0, 0.0),
+           **size) -> Path:
+    """The benchmark scene folder (made by ``lift3d synth`` on first use)."""
+    root = cfg.out / "scenes" / _scene_name(kind, seed, noise, depth, pose_noise, **size)
     if not (root / "transforms.json").is_file():
-        args = {"n_views": 12, "width": 40, "height": 40} if cfg.quick else {}
+        args = dict(_QUICK_SCENE) if cfg.quick else {}
         args.update(size)
-        make_scene(root, kind=kind, seed=seed, noise=noise, progress=False, **args)
+        make_scene(root, kind=kind, seed=seed, noise=noise, depth=depth, pose_noise=tuple(pose_noise),
+                   progress=False, **args)
     return root
+
+
+def run_inputs(res: dict) -> str:
+    """The *inputs* column of one run: what it trained on, as the run itself records it (the training
+    summary's ``inputs``, from the run's config.yml: ``RGB``, ``RGB + SfM points``, ``RGB + depth``); for runs
+    that do not record it, derived from whether depth maps supervised the training."""
+    return res.get("inputs") or ("RGB + depth" if res.get("depth_supervision") else "RGB")
 
 
 def _record(res: dict, **tags) -> dict:
@@ -178,93 +292,255 @@ def _record(res: dict, **tags) -> dict:
     m = res["metrics"]
     p3 = m.get("points3d") or {}
     rec: dict[str, Any] = dict(tags)
+    depth = bool(res.get("depth_supervision", False))
     rec.update({
         "train_seconds": res["train_seconds"],
         "steps": res["steps"],
         "peak_rss_mb": res["peak_rss_mb"],
-        "depth_supervision": bool(res.get("depth_supervision", False)),
+        "depth_supervision": depth,
+        "inputs": run_inputs(res),
+        "pose_refinement": bool(res.get("pose_refinement", False)),
         "render_ms_per_2048_rays": m.get("render_ms_per_2048_rays"),
         "run": res["run"],
         "reevaluated": res.get("reevaluated"),
+        "poses_scored_at": (m.get("poses") or {}).get("scored_at"),
     })
     for k in ("psnr", "miou", "pq_scene", "sq_scene", "rq_scene", "miou_strict", "pq_scene_strict",
               "sq_scene_strict", "rq_scene_strict"):
         rec[k] = m.get(k)
     rec["points3d"] = {k: p3.get(k) for k in ("fscore", "miou", "miou_strict", "pq", "pq_strict", "chamfer",
-                                              "accuracy", "completeness", "instance_recall", "min_area")}
+                                              "accuracy", "completeness", "instance_recall", "n_instances",
+                                              "n_pred_instances", "min_area")}
     pl = m.get("pseudo_labels") or {}
     rec["pseudo_labels"] = {k: pl.get(k) for k in ("miou", "pq_scene", "sq_scene", "rq_scene", "miou_strict",
                                                    "pq_scene_strict")}
     return rec
 
 
+# ------------------------------------------------------------------------------------------ the plan
+def _steps_of(preset: str, overrides: dict) -> int:
+    """Training steps a run of ``preset`` with ``overrides`` is scheduled for (no time budget)."""
+    return int(load_config(preset, overrides={"optim": overrides.get("optim", {})} if overrides.get("optim")
+                           else None).optim.steps)
+
+
+#: Sections whose tables show 3D columns: their runs compute the 3D metrics (``--quick``: the preset table
+#: and the export's run only, to keep the smoke test short).
+_SECTIONS_3D = ("runs", "pose_noise", "parameterisation", "")
+_SECTIONS_3D_QUICK = ("runs", "")
+
+
+def plan_jobs(cfg: BenchConfig) -> list[Job]:
+    """Every training run the configured sections need, in the order they run (shared runs once).
+
+    A run two sections need (the indoor moderate RGB + depth run of the preset table is also the moderate
+    point of both noise curves) is one job, listed under its first section and reused by the others.
+
+    A run computes the 3D metrics when any section with 3D columns would use it with every section on
+    (so a run cached by ``--only curves`` serves the preset table later); the ablation's and the
+    label-noise curve's own runs skip them (their tables show 2D metrics; the export is most of an
+    evaluation's time). ``--quick`` decides from the sections it runs."""
+    jobs = _plan_sections(cfg)
+    if cfg.quick:
+        with_3d = {j.cache for j in jobs if j.section in _SECTIONS_3D_QUICK}
+    else:
+        full = dataclasses.replace(cfg, preset_table=True, curves=True, bounded_check=True, export=True, ablation=False)
+        with_3d = {j.cache for j in _plan_sections(full) if j.section in _SECTIONS_3D}
+    for job in jobs:
+        job.points3d = job.cache in with_3d
+    return jobs
+
+
+def _plan_sections(cfg: BenchConfig) -> list[Job]:
+    """The jobs of :func:`plan_jobs` for the sections ``cfg`` switches on."""
+    cache = cfg.out / "cache"
+    quick = _QUICK_TRAIN if cfg.quick else {}
+    first = cfg.presets[0]
+    jobs: list[Job] = []
+
+    def add(section: str, kind: str, seed: int, noise: str, preset: str, variant: str = "all", *,
+            depth: str = "sensor", pose_noise=(0.0, 0.0), overrides: dict | None = None, **tags) -> None:
+        scene = {"kind": kind, "seed": int(seed), "noise": noise, "depth": depth,
+                 "pose_noise": [float(pose_noise[0]), float(pose_noise[1])]}
+        over = _merge(quick, overrides or {})
+        name = f"run_{_scene_name(kind, seed, noise, depth, pose_noise)}_{preset}_{variant}"
+        t = {"scene": kind, "noise": noise, "scene_depth": depth, "pose_noise": scene["pose_noise"], "preset": preset,
+             "seed": int(seed), "variant": variant, **tags}
+        jobs.append(Job(section, t, scene, over, cache / f"{name}.json"))
+
+    if cfg.preset_table:
+        for kind in cfg.scenes:
+            for inputs in cfg.inputs:
+                for noise in cfg.noises:
+                    for seed in cfg.seeds:
+                        add("runs", kind, seed, noise, first, depth=INPUTS[inputs])
+        if "indoor" in cfg.scenes and "rgb+depth" in cfg.inputs:
+            for preset in cfg.presets[1:]:
+                for noise in cfg.noises:
+                    for seed in cfg.seeds:
+                        add("runs", "indoor", seed, noise, preset)
+    if cfg.curves:
+        for noise in cfg.label_noise_levels:
+            for seed in cfg.seeds:
+                add("label_noise", "indoor", seed, noise, first)
+        refinement = [("all", {})] + ([("pose-refinement", cfg.pose_refinement)] if cfg.pose_refinement else [])
+        for pose in cfg.pose_noise_levels:
+            for variant, over in refinement:
+                for seed in cfg.seeds:
+                    add("pose_noise", "indoor", seed, "moderate", first, variant, pose_noise=pose, overrides=over)
+    if cfg.ablation:
+        budget = 2.0 if cfg.quick else float(cfg.ablation_budget)
+        modes = {"steps": {"optim": {"steps": _QUICK_TRAIN["optim"]["steps"] if cfg.quick else cfg.ablation_steps}},
+                 "time": {"trainer": {"time_budget": budget}, "optim": {"steps": 100000}}}
+        for mode, mode_over in modes.items():
+            for variant, over in ABLATION.items():
+                for seed in cfg.seeds:
+                    tags = {"mode": mode}
+                    if mode == "time":
+                        tags["budget_seconds"] = budget
+                    add("ablation", "indoor", seed, "moderate", first, f"{variant}_equal-{mode}",
+                        overrides=_merge(_merge(ABLATION_COMMON, over), mode_over), **tags)
+                    jobs[-1].tags["variant"] = variant
+    if cfg.bounded_check and "outdoor" in cfg.scenes:
+        # The preset table's outdoor runs use the contracted (unbounded) field; the same runs with a bounded
+        # field (contraction "none": nothing outside the normalised box) show what the contraction buys.
+        for seed in cfg.seeds:
+            add("parameterisation", "outdoor", seed, "moderate", first, "bounded",
+                overrides={"field": {"contraction": "none"}})
+            add("parameterisation", "outdoor", seed, "moderate", first)
+    if cfg.export:  # the export times the first indoor run
+        add("", "indoor", cfg.seeds[0], "moderate", first)
+    return jobs
+
+
+def _estimate_seconds(cfg: BenchConfig, jobs: list[Job]) -> dict[Path, float]:
+    """Estimated wall time of each job not yet in the cache: steps × seconds per step + evaluation.
+
+    Seconds per step and per evaluation come from finished runs of the same preset and field kind in this
+    cache (their median) when there are any, else from REFERENCE_STEP_SECONDS / REFERENCE_EVAL_SECONDS."""
+    per_step: dict[str, list[float]] = {}
+    per_eval: dict[tuple[str, bool], list[float]] = {}
+    keys: dict[Path, str] = {}
+    for job in jobs:
+        kind = job.overrides.get("field", {}).get("kind", "grid")
+        key = "quick" if cfg.quick else ("mlp" if kind == "mlp" else job.tags["preset"])
+        keys[job.cache] = key
+        if job.cache.is_file():
+            res = json.loads(job.cache.read_text())
+            if res.get("steps"):
+                per_step.setdefault(key, []).append(res["train_seconds"] / res["steps"])
+            m = res.get("metrics") or {}
+            if m.get("seconds"):
+                ev_key = "quick" if cfg.quick else job.tags["preset"]
+                per_eval.setdefault((ev_key, m.get("points3d") is not None), []).append(m["seconds"])
+    out = {}
+    for job in jobs:
+        if job.cache.is_file():
+            continue
+        key = keys[job.cache]
+        step = statistics.median(per_step[key]) if key in per_step else REFERENCE_STEP_SECONDS.get(key, 0.5)
+        ev_key = (key if key != "mlp" else job.tags["preset"], job.points3d)
+        reference = REFERENCE_EVAL_SECONDS if job.points3d else REFERENCE_EVAL_2D_SECONDS
+        ev = statistics.median(per_eval[ev_key]) if ev_key in per_eval else reference.get(ev_key[0], 60.0)
+        budget = job.overrides.get("trainer", {}).get("time_budget")
+        train = float(budget) if budget else _steps_of(job.tags["preset"], job.overrides) * step
+        out[job.cache] = train + ev
+    return out
+
+
+#: How ``--plan`` names the sections a run serves.
+_SECTION_NAMES = {"runs": "presets", "label_noise": "label-noise curve", "pose_noise": "pose-noise curve",
+                  "parameterisation": "bounded", "export": "export"}
+
+
+def plan_text(cfg: BenchConfig, jobs: list[Job] | None = None) -> str:
+    """``lift3d bench --plan``: every training run with its status and estimated time, the other
+    measurements, and the total still to do."""
+    jobs = plan_jobs(cfg) if jobs is None else jobs
+    est = _estimate_seconds(cfg, jobs)
+    lines = [f"lift3d bench plan for {cfg.out} (estimates from this cache's finished runs where there are any, "
+             "else from a 2-core CPU with nothing else running)", "",
+             f"{'status':<7} {'est. min':>8}  run (sections)"]
+    todo_s, n_todo, n_done = 0.0, 0, 0
+    sections: dict[Path, list[str]] = {}
+    for job in jobs:  # a run several sections share is trained once: listed once, with every section
+        sections.setdefault(job.cache, [])
+        if (job.section or "export") not in sections[job.cache]:
+            sections[job.cache].append(job.section or "export")
+    for job in jobs:
+        if job.cache not in sections:
+            continue
+        names = [_SECTION_NAMES.get(n, n) for n in sections.pop(job.cache)]
+        done = job.cache.is_file()
+        n_done += done
+        n_todo += not done
+        todo_s += est.get(job.cache, 0.0)
+        lines.append(f"{'cached' if done else 'to do':<7} {est.get(job.cache, 0.0) / 60:>8.1f}  {job.name[4:]} "
+                     f"({', '.join(names)})")
+    extra = {name: REFERENCE_EXTRA_MINUTES[name] * (0.1 if cfg.quick else 1.0)
+             for name, on in (("scaling", cfg.scaling), ("export", cfg.export), ("profile", cfg.profile),
+                              ("under load", cfg.under_load)) if on}
+    extra_s = 60.0 * sum(extra.values())
+    lines += ["", f"{n_done + n_todo} training runs: {n_done} cached, {n_todo} to do, about "
+                  f"{todo_s / 3600:.1f} h of training and evaluation still to do"
+                  + (f"; besides: {', '.join(f'{k} ~{v:.0f} min' for k, v in extra.items())}" if extra else "") + "."]
+    lines.append(f"In all about {(todo_s + extra_s) / 3600:.1f} h on one machine, one run at a time (runs are not "
+                 "run in parallel: the timings would disturb each other); twice that or more when others share "
+                 "the cores.")
+    return "\n".join(lines)
+
+
+# ------------------------------------------------------------------------------------------ running
 def run_benchmark(cfg: BenchConfig) -> dict:
     """Run (or resume) the benchmark and write every report. Returns the results dict."""
+    cfg.check()
     cfg.out.mkdir(parents=True, exist_ok=True)
     cache = cfg.out / "cache"
     quick_over = _QUICK_TRAIN if cfg.quick else {}
     results: dict[str, Any] = {"machine": machine_info(), "created": _dt.datetime.now().isoformat(timespec="seconds"),
-                               "quick": cfg.quick, "runs": [], "ablation": [], "parameterisation": [],
-                               "scaling": [], "export": None, "profile": None,
+                               "quick": cfg.quick, "seeds": list(cfg.seeds), "runs": [],
+                               "curves": {"label_noise": [], "pose_noise": []}, "ablation": [],
+                               "parameterisation": [], "skipped": [], "scaling": [], "export": None, "profile": None,
                                "under_load": None}
+    jobs = plan_jobs(cfg)
+    done: dict[Path, dict | None] = {}
+    for job in progress_bar(jobs, desc="bench runs", disable=not cfg.progress, unit="run"):
+        if job.cache not in done:  # a run several sections share is trained (or skipped) once
+            eval_spec = {"num_points": 5_000 if cfg.quick else 200_000, "points3d": job.points3d}
+            if job.cache.is_file():  # finished before: its scene is not needed (nor made again)
+                done[job.cache] = (_reevaluate(job.cache, eval_spec, in_process=cfg.quick)
+                                   if cfg.reevaluate and job.section != "ablation" else json.loads(job.cache.read_text()))
+            else:
+                try:
+                    scene = _scene(cfg, job.scene["kind"], job.scene["seed"], job.scene["noise"], job.scene["depth"],
+                                   job.scene["pose_noise"])
+                except InputError as exc:
+                    # e.g. a pose noise that would put a written camera inside geometry on this seed: the row then
+                    # has one seed less, and the report says so.
+                    results["skipped"].append({**job.tags, "section": job.section, "reason": str(exc)})
+                    done[job.cache] = None
+                    continue
+                spec = {"kind": "train", "scene": str(scene), "preset": job.tags["preset"],
+                        "seed": job.scene["seed"], "output_dir": str(cfg.out / "runs" / (job.section or "runs")),
+                        "overrides": job.overrides, "timing_repeats": 1 if cfg.quick else 10, **eval_spec}
+                done[job.cache] = _worker(spec, job.cache, in_process=cfg.quick)
+        if done[job.cache] is None:
+            continue
+        rec = _record(done[job.cache], **job.tags)
+        if job.section in ("label_noise", "pose_noise"):
+            results["curves"][job.section].append(rec)
+        elif job.section:
+            results[job.section].append(rec)
+    results["summary"] = tables.summarize(results)
 
-    jobs: list[tuple[str, dict, Path, dict]] = []
-    for kind in cfg.scenes:
-        for seed in cfg.seeds:
-            for preset in cfg.presets:
-                tags = {"scene": kind, "noise": "moderate", "preset": preset, "seed": seed, "variant": "all"}
-                jobs.append(("run", tags, cache / f"run_{kind}_{preset}_s{seed}.json", {}))
-    if cfg.hard_noise and "indoor" in cfg.scenes:
-        tags = {"scene": "indoor", "noise": "hard", "preset": cfg.presets[0], "seed": cfg.seeds[0], "variant": "all"}
-        jobs.append(("run", tags, cache / f"run_indoor_hard_{cfg.presets[0]}.json", {}))
-    if cfg.rgb_only and "indoor" in cfg.scenes:
-        # The paper's setting: the same scene without its depth maps.
-        tags = {"scene": "indoor", "noise": "moderate", "preset": cfg.presets[0], "seed": cfg.seeds[0],
-                "variant": "rgb-only"}
-        jobs.append(("run", tags, cache / f"run_indoor_rgbonly_{cfg.presets[0]}_s{cfg.seeds[0]}.json",
-                     {"losses": {"depth": 0.0}}))
-    if cfg.ablation:
-        budget = 8.0 if cfg.quick else cfg.ablation_budget
-        for variant, over in ABLATION.items():
-            tags = {"scene": "indoor", "noise": "moderate", "preset": cfg.presets[0], "seed": cfg.seeds[0],
-                    "variant": variant, "budget_seconds": budget}
-            over = _merge(_merge(ABLATION_COMMON, over), {"trainer": {"time_budget": budget},
-                                                          "optim": {"steps": 100000}})
-            jobs.append(("ablation", tags, cache / f"ablation_{variant}.json", over))
-
-    if cfg.bounded_check and "outdoor" in cfg.scenes:
-        # The outdoor preset run above uses the contracted (unbounded) field; the same run with a bounded
-        # field (contraction "none": nothing outside the normalised box) shows what the contraction buys.
-        tags = {"scene": "outdoor", "noise": "moderate", "preset": cfg.presets[0], "seed": cfg.seeds[0],
-                "variant": "bounded"}
-        jobs.append(("parameterisation", tags, cache / f"bounded_outdoor_{cfg.presets[0]}_s{cfg.seeds[0]}.json",
-                     {"field": {"contraction": "none"}}))
-
-    sections = {"run": "runs", "ablation": "ablation", "parameterisation": "parameterisation"}
-    for section, tags, path, over in progress_bar(jobs, desc="bench runs", disable=not cfg.progress, unit="run"):
-        scene = _scene(cfg, tags["scene"], tags["seed"], tags["noise"])
-        spec = {"kind": "train", "scene": str(scene), "preset": tags["preset"], "seed": tags["seed"],
-                "output_dir": str(cfg.out / "runs" / section), "overrides": _merge(quick_over, over),
-                "timing_repeats": 3 if cfg.quick else 10, "num_points": 20_000 if cfg.quick else 200_000}
-        if section == "ablation":  # the budget, not the step count, ends these runs
-            spec["overrides"] = _merge(spec["overrides"], {"optim": {"steps": 100000}})
-        if cfg.reevaluate and section != "ablation" and path.is_file():
-            res = _reevaluate(path, spec)
-        else:
-            res = _worker(spec, path)
-        results[sections[section]].append(_record(res, **tags))
-    if results["parameterisation"]:
-        unbounded = [r for r in results["runs"] if r["scene"] == "outdoor" and r["preset"] == cfg.presets[0]
-                     and r["seed"] == cfg.seeds[0]]
-        results["parameterisation"] = [dict(r, variant="unbounded") for r in unbounded[:1]] + results["parameterisation"]
-
-    first = [r for r in results["runs"] if r["scene"] == "indoor" and r["noise"] == "moderate"
-             and r["preset"] == cfg.presets[0] and r["variant"] == "all" and r["seed"] == cfg.seeds[0]]
-    if cfg.export and first:
-        spec = {"kind": "export", "run": first[0]["run"], "num_points": 20_000 if cfg.quick else 1_000_000}
+    # The export times the first indoor run (a job of its own when the preset table is not run).
+    first_run = (done.get(cache / f"run_{_scene_name('indoor', cfg.seeds[0], 'moderate')}_{cfg.presets[0]}_all.json")
+                 or {}).get("run")
+    if cfg.export and first_run:
+        spec = {"kind": "export", "run": first_run, "num_points": 20_000 if cfg.quick else 1_000_000}
         if cfg.reevaluate:
             (cache / f"export_indoor_{cfg.presets[0]}.json").unlink(missing_ok=True)
-        results["export"] = dict(_worker(spec, cache / f"export_indoor_{cfg.presets[0]}.json"),
+        results["export"] = dict(_worker(spec, cache / f"export_indoor_{cfg.presets[0]}.json", in_process=cfg.quick),
                                  preset=cfg.presets[0])
     if cfg.scaling:
         results["scaling"] = run_scaling(cfg, cache)
@@ -273,7 +549,7 @@ def run_benchmark(cfg: BenchConfig) -> dict:
         spec = {"kind": "profile", "scene": str(scene), "preset": cfg.presets[0], "overrides": quick_over,
                 "output_dir": str(cfg.out / "runs" / "profile"), "warmup": 2 if cfg.quick else 10,
                 "steps": 2 if cfg.quick else 10, "repeats": 2 if cfg.quick else 10}
-        results["profile"] = _worker(spec, cache / f"profile_{cfg.presets[0]}.json")
+        results["profile"] = _worker(spec, cache / f"profile_{cfg.presets[0]}.json", in_process=cfg.quick)
     if cfg.under_load and "indoor" in cfg.scenes:
         scene = _scene(cfg, "indoor", cfg.seeds[0], "moderate")
         spec = {"kind": "under_load", "scene": str(scene), "preset": cfg.presets[0], "overrides": quick_over,
@@ -307,11 +583,11 @@ def run_scaling(cfg: BenchConfig, cache: Path) -> list[dict]:
             over = _merge(over, {"field": {"num_instance_channels": value}})
         elif factor == "classes" and value:
             over = _merge(over, {"field": {"num_semantic_classes": value}})
-        scene = _scene(cfg, "indoor", 0, "moderate", n_views=views, width=res, height=res)
+        scene = _scene(cfg, "indoor", cfg.seeds[0], "moderate", n_views=views, width=res, height=res)
         spec = {"kind": "scaling", "scene": str(scene), "preset": cfg.presets[0], "overrides": over,
-                "output_dir": str(cfg.out / "runs" / "scaling"), "warmup": 3 if cfg.quick else 5,
-                "steps": 5 if cfg.quick else 12, "repeats": 3 if cfg.quick else 7}
-        res_ = _worker(spec, cache / f"scaling_{factor}_{value}.json")
+                "output_dir": str(cfg.out / "runs" / "scaling"), "warmup": 1 if cfg.quick else 5,
+                "steps": 2 if cfg.quick else 12, "repeats": 2 if cfg.quick else 7}
+        res_ = _worker(spec, cache / f"scaling_{factor}_{value}.json", in_process=cfg.quick)
         shown = res_["semantic_classes"] if factor == "classes" else value
         rows.append({"factor": factor, "value": shown, "step_ms": res_["step_ms"], "render_ms": res_["render_ms"],
                      "peak_rss_mb": res_["peak_rss_mb"], "grid_resolution": res_["grid_resolution"],
@@ -340,6 +616,8 @@ def write_reports(results: dict, cfg: BenchConfig) -> None:
     pictures = {}
     if results["runs"]:
         pictures["pareto"] = plot_pareto(results, cfg.out / "pareto.png")
+    if any(results.get("curves", {}).values()):
+        pictures["noise_curves"] = plot_noise_curves(results, cfg.out / "noise_curves.png")
     if results["scaling"]:
         pictures["scaling"] = plot_scaling(results, cfg.out / "scaling.png")
     md = benchmarks_markdown(results, {k: p.name for k, p in pictures.items()})
@@ -353,23 +631,31 @@ def write_reports(results: dict, cfg: BenchConfig) -> None:
         write_text_atomic(cfg.docs_dir / "benchmarks.md", md_docs)
 
 
+#: results.csv: one row per run and section it serves (a shared run is in several sections), per seed.
+CSV_COLUMNS = ["section", "scene", "noise", "scene_depth", "inputs", "pose_noise_deg", "pose_noise_cm",
+               "pose_refinement", "preset", "variant", "mode", "seed", "steps", "train_seconds", "peak_rss_mb",
+               "render_ms_per_2048_rays", "psnr", "miou", "pq_scene", "sq_scene", "rq_scene", "miou_strict",
+               "pq_scene_strict", "fscore_3d", "miou_3d", "miou_3d_strict", "objects_found_3d", "gt_objects_3d",
+               "instances_exported_3d", "pseudo_miou", "pseudo_pq_scene", "poses_scored_at"]
+
+
 def results_csv(results: dict) -> str:
-    cols = ["section", "scene", "noise", "preset", "variant", "depth_supervision", "seed", "steps", "train_seconds", "peak_rss_mb",
-            "render_ms_per_2048_rays", "psnr", "miou", "pq_scene", "sq_scene", "rq_scene", "miou_strict",
-            "pq_scene_strict", "fscore_3d", "miou_3d", "miou_3d_strict", "instance_recall_3d", "pseudo_miou",
-            "pseudo_pq_scene"]
     buf = io.StringIO()
     w = csv.writer(buf)
-    w.writerow(cols)
-    for section in ("runs", "ablation", "parameterisation"):
-        for r in results.get(section, []):
-            if section == "parameterisation" and r["variant"] == "unbounded":
-                continue  # the same run is already a "runs" row
+    w.writerow(CSV_COLUMNS)
+    sections = [("runs", results.get("runs", []))]
+    sections += [(f"curves/{k}", v) for k, v in (results.get("curves") or {}).items()]
+    sections += [("ablation", results.get("ablation", [])), ("parameterisation", results.get("parameterisation", []))]
+    for section, records in sections:
+        for r in records:
             p3 = r["points3d"]
+            pose = r.get("pose_noise") or [None, None]
             row = dict(r, section=section, fscore_3d=p3.get("fscore"), miou_3d=p3.get("miou"),
-                       miou_3d_strict=p3.get("miou_strict"), instance_recall_3d=p3.get("instance_recall"),
-                       pseudo_miou=r["pseudo_labels"].get("miou"), pseudo_pq_scene=r["pseudo_labels"].get("pq_scene"))
-            w.writerow([row.get(c) for c in cols])
+                       miou_3d_strict=p3.get("miou_strict"), objects_found_3d=p3.get("instance_recall"),
+                       gt_objects_3d=p3.get("n_instances"), instances_exported_3d=p3.get("n_pred_instances"),
+                       pseudo_miou=r["pseudo_labels"].get("miou"), pseudo_pq_scene=r["pseudo_labels"].get("pq_scene"),
+                       pose_noise_deg=pose[0], pose_noise_cm=pose[1])
+            w.writerow([row.get(c) for c in CSV_COLUMNS])
     return buf.getvalue()
 
 
@@ -378,104 +664,34 @@ def benchmarks_markdown(results: dict, pictures: dict[str, str]) -> str:
     lines = [
         "# Benchmarks",
         "",
-        "Regenerated by `lift3d bench` (do not edit by hand). Every number below was measured in one benchmark "
+        "Regenerated by `lift3d bench` (do not edit by hand: the numbers and the sentences about them are written "
+        "from the results). Every number below was measured in one benchmark "
         f"run on **{m['cpu']}**, {m['cpus_available']} CPU cores, torch {m['torch']} with "
         f"{m['torch_threads']} threads{', GPU ' + m['cuda'] if m.get('cuda') else ', no GPU'}; "
         f"{results['created']}{' (--quick: tiny scenes, smoke test only)' if results.get('quick') else ''}.",
+        "",
+        tables.seed_note(results.get("seeds") or sorted({r["seed"] for r in results.get("runs", [])})),
     ]
     again = sorted({r["reevaluated"] for r in results["runs"] + results["parameterisation"] if r.get("reevaluated")})
     if again:
-        lines += ["", f"The metrics of the preset, hard-noise, RGB-only and bounded runs were computed again from "
+        lines += ["", f"The metrics of the preset, curve and bounded runs were computed again from "
                       f"their trained checkpoints on {again[-1][:10]} (`lift3d bench --reevaluate`, after a change to "
                       "the eval or export code); their training time, memory and render timing are from the runs "
                       "themselves."]
-    lines += [
-        "",
-        "## Presets: the speed/accuracy trade",
-        "",
-        "Test views of synthetic scenes (`lift3d synth`). *Lifted* is the trained field; *2D* is the same metric "
-        "on the pseudo-labels it learned from (per-frame ids as given). PQ^scene and mIoU at `min_area` 0.005 "
-        "(strict, `min_area` 0, in results.csv). Render: median ms for 2048 rays with rgb, depth, semantic and "
-        "instance. *Inputs*: `RGB + depth` when the scene's depth maps supervise training (what every preset does "
-        "with a scene that has them, as the synthetic scenes do); `RGB` is the paper's setting (`--losses.depth 0`). "
-        "3D metrics score the exported point cloud against `gt/points.ply` at τ = 1 % of its diagonal; GT points "
-        "with no exported point within τ count as void predictions (docs/metrics.md). 3D mIoU uses the 2D "
-        "rules: `min_area` 0.005, then strict in brackets, where any void prediction puts a void class with "
-        "IoU 0 into the mean.",
-        "",
-        "| scene | noise | inputs | preset | seed | train s | peak MB | render ms | PSNR | mIoU (2D) | PQ^scene (2D) | "
-        "SQ | RQ | 3D F-score | 3D mIoU |",
-        "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|",
-    ]
-    for r in results["runs"]:
-        pl = r["pseudo_labels"]
-        lines.append(
-            f"| {r['scene']} | {r['noise']} | {'RGB + depth' if r.get('depth_supervision') else 'RGB'} | "
-            f"{r['preset']} | {r['seed']} | {_f(r['train_seconds'], 0)} | "
-            f"{_f(r['peak_rss_mb'], 0)} | {_f(r['render_ms_per_2048_rays'], 1)} | {_f(r['psnr'], 2)} | "
-            f"{_f(r['miou'])} ({_f(pl.get('miou'))}) | {_f(r['pq_scene'])} ({_f(pl.get('pq_scene'))}) | "
-            f"{_f(r['sq_scene'])} | {_f(r['rq_scene'])} | {_f(r['points3d'].get('fscore'))} | "
-            f"{_f(r['points3d'].get('miou'))} ({_f(r['points3d'].get('miou_strict'))}) |")
+    if results["runs"]:
+        lines += tables.presets_markdown(results)
     if "pareto" in pictures:
         lines += ["", f"![speed/accuracy]({pictures['pareto']})"]
+    if any((results.get("curves") or {}).values()):
+        lines += tables.curves_markdown(results, pictures.get("noise_curves"))
     if results["ablation"]:
-        budget = results["ablation"][0].get("budget_seconds")
-        lines += [
-            "",
-            "## Ablation (the paper's Table 6, on our indoor scene)",
-            "",
-            f"Every variant trained for the same wall-time budget ({_f(budget, 0)} s; the learning-rate schedule "
-            "follows the budget). Base = a plain NeRF MLP field with the semantic and instance losses; S = the "
-            "voxel-grid model; L_seg = segment consistency; L_feat = the perceptual prior. The last columns say "
-            "whether the change from the previous row moves each metric the way the paper's Table 6 does.",
-            "",
-            "| variant | steps | PSNR | mIoU | PQ^scene | SQ | RQ | paper mIoU / PQ / PSNR | agrees with paper (mIoU, PQ, PSNR) |",
-            "|---|---|---|---|---|---|---|---|---|",
-        ]
-        by = {r["variant"]: r for r in results["ablation"]}
-        against: list[str] = []
-        compare = {"base+S": "base", "base+S+L_seg": "base+S", "base+S+L_feat": "base+S", "all": "base+S"}
-        for name, r in by.items():
-            paper = PAPER_ABLATION.get(name)
-            agree = "–"
-            ref = by.get(compare.get(name, ""))
-            if paper and ref and compare.get(name) in PAPER_ABLATION:
-                pref = PAPER_ABLATION[compare[name]]
-                marks = []
-                for key, ours_i in (("miou", 0), ("pq_scene", 1), ("psnr", 2)):
-                    ours = (r.get(key) or 0) - (ref.get(key) or 0)
-                    theirs = paper[ours_i] - pref[ours_i]
-                    marks.append("yes" if (ours > 0) == (theirs > 0) else "**no**")
-                agree = ", ".join(marks) + f" (vs {compare[name]})"
-            lines.append(f"| {name} | {r['steps']} | {_f(r['psnr'], 2)} | {_f(r['miou'])} | {_f(r['pq_scene'])} | "
-                         f"{_f(r['sq_scene'])} | {_f(r['rq_scene'])} | "
-                         f"{' / '.join(str(x) for x in paper) if paper else '–'} | {agree} |")
-            if "**no**" in agree:
-                against.append(f"{name} vs {compare[name]}")
-        lines += ["", "Against the paper: " + ("; ".join(against) + " move at least one metric the other way "
-                  "on our scene." if against else "every component moves mIoU, PQ^scene and PSNR the paper's way.")]
-        if budget is not None and budget < 600:
-            lines += ["", f"With {_f(budget, 0)} s per variant the grid variants run fewer steps than the `fast` "
-                      "preset (1 500) and none is near convergence (compare the preset table; L_seg only starts at "
-                      "30 % of the schedule), so "
-                      "the +L_seg / +L_feat rows say little about those losses at this budget; rerun with "
-                      "`--ablation-budget 600` or more before drawing conclusions about them. The gap between Base "
-                      "(a plain MLP: under one step per second on a CPU) and +S is the robust finding."]
+        lines += tables.ablation_markdown(results, PAPER_ABLATION)
     if results.get("parameterisation"):
-        lines += [
-            "",
-            "## Unbounded vs bounded space (outdoor scene)",
-            "",
-            "The same preset and seed on the outdoor scene, once with the contracted field that covers all of "
-            "space (the default for scenes whose cameras look out of their box) and once bounded to the "
-            "normalised scene box (`field.contraction: none`).",
-            "",
-            "| field | steps | train s | PSNR | mIoU | PQ^scene | 3D F-score |",
-            "|---|---|---|---|---|---|---|",
-        ]
-        for r in results["parameterisation"]:
-            lines.append(f"| {r['variant']} | {r['steps']} | {_f(r['train_seconds'], 0)} | {_f(r['psnr'], 2)} | "
-                         f"{_f(r['miou'])} | {_f(r['pq_scene'])} | {_f(r['points3d'].get('fscore'))} |")
+        lines += tables.parameterisation_markdown(results)
+    if results.get("skipped"):
+        lines += ["", "**Runs that could not be made** (their rows average over fewer seeds):", ""]
+        lines += [f"- {s.get('section') or 'export'}: {s['scene']} seed {s['seed']}, {s['noise']}, pose noise "
+                  f"{s['pose_noise'][0]:g}°/{s['pose_noise'][1]:g} cm — {s['reason']}" for s in results["skipped"]]
     if results["scaling"]:
         lines += [
             "",
@@ -498,7 +714,9 @@ def benchmarks_markdown(results: dict, pictures: dict[str, str]) -> str:
         lines += profile_markdown(results["profile"])
     if results.get("under_load"):
         lines += under_load_markdown(results["under_load"])
-    lines += ["", "Reproduce: `lift3d bench --out bench_out` (resumable; `--quick` for the CI smoke test).", ""]
+    lines += ["", "Reproduce: `lift3d bench --out bench_out` (resumable: finished runs are cached; `--plan` lists "
+              "every run with an estimated time, `--only presets,curves,...` runs some sections, `--seeds` chooses "
+              "the scene seeds, `--quick` is the CI smoke test).", ""]
     return "\n".join(lines)
 
 

@@ -50,7 +50,8 @@ def run_train(spec: dict) -> dict:
     train_wall = time.perf_counter() - start
     rss_train = peak_rss_mb()  # the peak only grows: read it before evaluation adds its own
     metrics = evaluate_run(result.run.path, split="test", progress=False, num_points=int(spec.get("num_points", 200_000)),
-                           timing_repeats=int(spec.get("timing_repeats", 10)))
+                           timing_repeats=int(spec.get("timing_repeats", 10)),
+                           with_points3d=bool(spec.get("points3d", True)))
     return json_safe({
         "run": str(result.run.path),
         "steps": result.steps,
@@ -58,6 +59,10 @@ def run_train(spec: dict) -> dict:
         "train_wall_seconds": train_wall,
         "peak_rss_mb": rss_train,
         "depth_supervision": bool(result.summary.get("depth_supervision", False)),
+        # What the run trained on and whether it refined its poses, as the run records them (None: the
+        # benchmark derives the inputs from depth_supervision, runner.run_inputs).
+        "inputs": result.summary.get("inputs"),
+        "pose_refinement": bool(result.summary.get("pose_refinement", False)),
         "metrics": metrics,
     })
 
@@ -65,7 +70,8 @@ def run_train(spec: dict) -> dict:
 def run_evaluate(spec: dict) -> dict:
     """Evaluate an existing run folder again (``lift3d bench --reevaluate``)."""
     metrics = evaluate_run(spec["run"], split="test", progress=False, num_points=int(spec.get("num_points", 200_000)),
-                           timing_repeats=int(spec.get("timing_repeats", 10)))
+                           timing_repeats=int(spec.get("timing_repeats", 10)),
+                           with_points3d=bool(spec.get("points3d", True)))
     return json_safe({"run": spec["run"], "metrics": metrics})
 
 

@@ -17,6 +17,9 @@ the scene's own 2D pseudo-labels (the baseline lifting has to beat), with a thin
        tau = 1 % of the GT box diagonal)
   speed  ms to render 2048 rays (rgb+depth+semantic+instance), median of 10 after 2 warm-up runs
 
+Frames whose true pose is known (gt_transform_matrix beside a noisy transform_matrix, as lift3d synth
+--pose-noise writes) are rendered from the true pose (--no-true-poses: from the written one).
+
 Writes <run>/metrics.json (and --json FILE) atomically; NaN / inf are written as null. Without GT panoptic
 labels only PSNR (plus depth / 3D where their GT exists) is computed. Definitions: docs/metrics.md.
 
@@ -36,6 +39,10 @@ def add_parser(subparsers, verb: str) -> argparse.ArgumentParser:
     p.add_argument("--json", metavar="FILE", help="also write the metrics to FILE")
     p.add_argument("--data", metavar="DIR", help="the scene folder, if it moved since training")
     p.add_argument("--no-points3d", action="store_true", help="skip the 3D metrics")
+    p.add_argument("--no-true-poses", action="store_true",
+                   help="render the scored frames from their written transform_matrix even when the scene also "
+                        "gives their true pose (gt_transform_matrix, e.g. lift3d synth --pose-noise); by default "
+                        "views are scored where their images were taken")
     p.add_argument("--num-points", type=int, default=200_000, metavar="N",
                    help="points of the labelled cloud scored against gt/points.ply (default: 200000)")
     p.add_argument("--timing-repeats", type=int, default=10, metavar="N",
@@ -65,7 +72,8 @@ def run(args: argparse.Namespace) -> int:
     set_threads(args.threads)
     m = evaluate_run(args.run, split=args.split, data=args.data, with_points3d=not args.no_points3d,
                      progress=not args.quiet, device=args.device, json_path=args.json, num_points=args.num_points,
-                     timing_repeats=args.timing_repeats, chunk_size=args.chunk_size)
+                     timing_repeats=args.timing_repeats, chunk_size=args.chunk_size,
+                     true_poses=not args.no_true_poses)
     print(format_eval_table(m))
     where = f"{m['run']}/metrics.json" + (f" and {args.json}" if args.json else "")
     print(f"wrote {where}")

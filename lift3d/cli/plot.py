@@ -22,7 +22,8 @@ interactive 3D view instead of the PNGs for FILE.ply, the written charts for --r
   lift3d plot --run RUN    views.png (photo | render | 2D pseudo-label | lifted panoptic | GT | depth for a
                            few test views) and curves.png (losses, PSNR, mIoU, PQ^scene over the steps).
   lift3d plot --bench DIR  pareto.png (PQ^scene, mIoU, PSNR vs training and render time per preset, against
-                           the pseudo-label baseline) and scaling.png (log-log cost vs each factor) from
+                           the pseudo-label baseline), noise_curves.png (PQ^scene and mIoU vs label noise
+                           and pose noise) and scaling.png (log-log cost vs each factor) from
                            DIR/results.json of `lift3d bench`.
 
 An instance id has the same colour in every picture (a hash of the id, the palette of `lift3d render`'s
@@ -48,7 +49,7 @@ def add_parser(subparsers, verb: str) -> argparse.ArgumentParser:
     )
     p.add_argument("file", nargs="?", metavar="FILE.ply", help="labelled points.ply or mesh.ply to draw")
     p.add_argument("--run", metavar="RUN", help="a run folder of lift3d train: test views and training curves")
-    p.add_argument("--bench", metavar="DIR", help="a folder with results.json of lift3d bench: Pareto and scaling")
+    p.add_argument("--bench", metavar="DIR", help="a folder with results.json of lift3d bench: Pareto, noise curves and scaling")
     p.add_argument("--output-dir", metavar="DIR",
                    help="where pictures go (default: FILE's folder/plots, RUN/plots, or the --bench DIR)")
     p.add_argument("--show", action="store_true", help="open an interactive window (needs a display)")
@@ -187,12 +188,15 @@ def _plot_run(args: argparse.Namespace) -> list[Path]:
 
 def _plot_bench(args: argparse.Namespace) -> list[Path]:
     # here, not at module level: keeps `lift3d --help` cheap
-    from lift3d.viz.bench import load_results, plot_pareto, plot_scaling
+    from lift3d.viz.bench import load_results, plot_noise_curves, plot_pareto, plot_scaling
 
     results, where = load_results(args.bench)
     bench_dir = Path(args.bench) if Path(args.bench).is_dir() else Path(args.bench).parent
     out_dir = Path(args.output_dir) if args.output_dir else bench_dir
     written = [plot_pareto(results, out_dir / "pareto.png")]
+    curves = results.get("curves")
+    if isinstance(curves, dict) and any(curves.values()):
+        written.append(plot_noise_curves(results, out_dir / "noise_curves.png"))
     if results.get("scaling"):
         written.append(plot_scaling(results, out_dir / "scaling.png"))
     else:

@@ -28,6 +28,7 @@ runs them all.
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import os
 from dataclasses import dataclass, field
@@ -182,6 +183,41 @@ class Scene:
         if name not in self.splits:
             raise InputError(self.root / "transforms.json", f"unknown split {name!r} (have {sorted(self.splits)})")
         return self.splits[name]
+
+    def true_pose_frames(self, frames: Iterable[int] | None = None) -> list[int]:
+        """The frames (of ``frames``, default all) that carry a true pose (``gt_transform_matrix``)."""
+        idx = range(len(self.frames)) if frames is None else frames
+        return [int(i) for i in idx if self.frames[int(i)].gt_c2w is not None]
+
+    def at_true_poses(self, frames: Iterable[int] | None = None) -> "Scene":
+        """The same scene with the true pose (``gt_transform_matrix``) of each of ``frames`` (default all) that
+        has one in place of its written ``transform_matrix``; other frames keep theirs.
+
+        A scene whose written poses are noisy (``lift3d synth --pose-noise``, or a capture surveyed
+        separately) is scored where its images were really taken.
+
+        Examples
+        --------
+        >>> scene = load_scene("scenes/room_noisy")  # doctest: +SKIP
+        >>> scene.at_true_poses(scene.split("test")).cameras.c2w  # doctest: +SKIP
+        """
+        c2w = self.cameras.c2w.copy()
+        for i in self.true_pose_frames(frames):
+            c2w[i] = self.frames[i].gt_c2w
+        return dataclasses.replace(self, cameras=dataclasses.replace(self.cameras, c2w=c2w))
+
+    def pose_error(self, frames: Iterable[int] | None = None) -> dict[str, float] | None:
+        """RMS rotation (degrees) and translation (world units) between the written and the true poses of
+        ``frames`` (default all) that have a true pose; None when none has one."""
+        idx = self.true_pose_frames(frames)
+        if not idx:
+            return None
+        written, true = self.cameras.c2w[idx], np.stack([self.frames[i].gt_c2w for i in idx])
+        rel = np.einsum("nji,njk->nik", true[:, :3, :3], written[:, :3, :3])
+        cos = np.clip((np.trace(rel, axis1=1, axis2=2) - 1.0) / 2.0, -1.0, 1.0)
+        moved = np.linalg.norm(written[:, :3, 3] - true[:, :3, 3], axis=1)
+        return {"frames": len(idx), "rms_deg": float(np.degrees(np.sqrt(np.mean(np.arccos(cos) ** 2)))),
+                "rms_translation": float(np.sqrt(np.mean(moved ** 2)))}
 
     # ---------------------------------------------------------------- pixels
     def image(self, i: int) -> np.ndarray:

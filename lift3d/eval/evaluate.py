@@ -60,6 +60,7 @@ __all__ = [
     "json_safe",
     "write_metrics",
     "trained_frames_warning",
+    "scoring_poses",
 ]
 
 #: Class-area filter of the published PQ^scene / mIoU numbers, and the strict variant (no filter).
@@ -218,6 +219,29 @@ def trained_frames_warning(scene: Scene, frames: Sequence[int]) -> tuple[list[st
                   "measure fitting, not generalisation (see frames_also_trained)"]
 
 
+def scoring_poses(scene: Scene, frames: Sequence[int], true_poses: bool = True) -> tuple[Scene, dict]:
+    """The scene whose cameras the scored ``frames`` are rendered from, and the ``poses`` block of
+    ``metrics.json``.
+
+    Frames with a true pose (``gt_transform_matrix``, written by ``lift3d synth --pose-noise``) are rendered
+    from it when ``true_poses`` is on: their images were taken there, so a view rendered from the noisy
+    written pose would be scored against a photo of somewhere else and pose noise would be charged twice.
+    Training frames keep the poses the field was trained with.
+
+    Returns
+    -------
+    (Scene, dict)
+        The scene to render from, and ``{"scored_at": "gt_transform_matrix" | "transform_matrix",
+        "true_pose_frames": n, "written_vs_true": {"frames", "rms_deg", "rms_translation"} or None}``
+        (the written poses' error against the true ones, world units).
+    """
+    err = scene.pose_error(frames)
+    use = bool(true_poses and err is not None)
+    block = {"scored_at": "gt_transform_matrix" if use else "transform_matrix",
+             "true_pose_frames": 0 if err is None else int(err["frames"]), "written_vs_true": err}
+    return (scene.at_true_poses(frames) if use else scene), block
+
+
 # --------------------------------------------------------------------------------------- assembling
 def _empty_2d_block() -> dict:
     block: dict[str, Any] = {}
@@ -345,7 +369,8 @@ def points3d_block(loaded: LoadedRun, scene: Scene, num_points: int = 200_000, p
         rq_strict`` (``min_area`` 0), ``accuracy completeness chamfer`` (world units),
         ``precision recall fscore`` at ``tau`` (1 % of the GT bounding-box diagonal), ``tau``, ``n_pred``,
         ``n_gt``, ``instance_recall`` (share of GT objects with ≥ 500 points found as one instance with point
-        IoU > 0.5) and ``n_instances``, ``source`` (``export.surface``: the export's surface points),
+        IoU > 0.5) and ``n_instances``, ``n_pred_instances`` (distinct thing instances among the scored
+        points: what the export offers), ``source`` (``export.surface``: the export's surface points),
         ``num_points``.
     """
     gt = scene.gt_points()
@@ -360,6 +385,10 @@ def points3d_block(loaded: LoadedRun, scene: Scene, num_points: int = 200_000, p
             "completeness", "chamfer", "precision", "recall", "fscore", "tau", "n_pred", "n_gt", "instance_recall",
             "n_instances")
     block = {k: r[k] for k in keys}
+    # Objects the export offers (distinct thing instances among the scored points), beside the GT objects
+    # scored (n_instances): an export that splits furniture into pieces finds objects but offers too many.
+    pred_inst = np.asarray(pts.instance)
+    block["n_pred_instances"] = int(len(np.unique(pred_inst[pred_inst > 0])))
     block.update(source=source, num_points=int(num_points))
     return block
 
@@ -475,6 +504,7 @@ def evaluate_run(
     num_points: int = 200_000,
     timing_repeats: int = 10,
     chunk_size: int | None = None,
+    true_poses: bool = True,
 ) -> dict:
     """Evaluate a trained run: render the split, score it and its pseudo-label baseline, time rendering.
 
@@ -502,6 +532,10 @@ def evaluate_run(
         Timed repeats of :func:`time_render` (0 skips the timing).
     chunk_size : int, optional
         Rays per rendering chunk for the split renders.
+    true_poses : bool
+        Render scored frames that have a true pose (``gt_transform_matrix``) from it rather than from their
+        written ``transform_matrix`` (:func:`scoring_poses`); the 3D block is unaffected (it is the export's
+        point cloud, built from the training views).
 
     Returns
     -------
@@ -524,7 +558,8 @@ def evaluate_run(
     if not frames:
         raise InputError(scene.root / "transforms.json", f"split {split!r} has no frames")
 
-    rendered = render_split(loaded, scene, frames, chunk_size=chunk_size, progress=progress)
+    scored_scene, poses = scoring_poses(scene, frames, true_poses)
+    rendered = render_split(loaded, scored_scene, frames, chunk_size=chunk_size, progress=progress)
     metrics: dict[str, Any] = {
         "run": str(Path(run_path).resolve()),
         "step": int(loaded.step),
@@ -535,6 +570,7 @@ def evaluate_run(
         "data": str(scene.root.resolve()),
         "lift3d_version": __version__,
         "min_area": MIN_AREA,
+        "poses": poses,
     }
     metrics.update(metrics_from_arrays(scene, frames, rendered))
     del rendered
@@ -549,7 +585,7 @@ def evaluate_run(
     metrics["render_ms_per_2048_rays"] = None
     metrics["render_timing"] = None
     if timing_repeats > 0:
-        timing = time_render(loaded, n_rays=2048, repeats=timing_repeats, scene=scene, frame=frames[0])
+        timing = time_render(loaded, n_rays=2048, repeats=timing_repeats, scene=scored_scene, frame=frames[0])
         metrics["render_ms_per_2048_rays"] = timing["median_ms"]
         metrics["render_timing"] = timing
     metrics["device"] = str(loaded.device)

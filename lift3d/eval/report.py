@@ -74,6 +74,13 @@ def format_eval_table(m: dict) -> str:
         lines.append(f"WARNING: {warning}: {', '.join(both[:8])}{', ...' if len(both) > 8 else ''}")
     for note in m.get("notes") or []:
         lines.append(f"note: {note}")
+    poses = m.get("poses") or {}
+    err = poses.get("written_vs_true")
+    if err and (err.get("rms_deg") or err.get("rms_translation")):
+        where = ("their true poses (gt_transform_matrix)" if poses.get("scored_at") == "gt_transform_matrix"
+                 else "their written poses (--no-true-poses)")
+        lines.append(f"poses: {err.get('frames')} scored frames rendered from {where}; the written poses are off by "
+                     f"{fmt(err.get('rms_deg'), 2)} deg and {fmt(err.get('rms_translation'))} (RMS, world units)")
     base = m.get("pseudo_labels")
     has_labels = m.get("miou") is not None or m.get("pq_scene") is not None
     w = 8

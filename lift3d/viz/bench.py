@@ -16,6 +16,8 @@ the file):
   (rows). One marker shape per preset (mean over scenes and seeds, bars = ±1 standard deviation, faint
   dots = single runs), one colour per variant; the dashed staircase joins the presets no other preset
   beats on both axes; the horizontal line is the 2D pseudo-label baseline lifting has to beat.
+* **Noise curves** — PQ^scene and mIoU (columns) of the lifted field and of its pseudo-labels against label
+  noise and against pose noise (rows), mean over seeds with ±1 standard deviation and the single seeds.
 * **Scaling plot** — log-log cost (ms per training step and per 2048 rendered rays; peak memory) against
   each factor, with the fitted exponent ``cost ∝ N^k`` in the legend.
 
@@ -40,7 +42,7 @@ from lift3d.errors import InputError
 from lift3d.utils.files import read_json
 from lift3d.viz.run import _pyplot, save_figure
 
-__all__ = ["load_results", "plot_pareto", "plot_scaling", "pareto_front", "power_law_exponent"]
+__all__ = ["load_results", "plot_pareto", "plot_scaling", "plot_noise_curves", "pareto_front", "power_law_exponent"]
 
 #: Presets in cost order; other preset names (YAML files) follow alphabetically.
 PRESET_ORDER = ("fast", "balanced", "quality")
@@ -273,9 +275,118 @@ def plot_pareto(results: dict | str | Path, path: str | Path, *, title: str | No
 
 
 def _scene_label(run: dict) -> str:
-    """``indoor``, ``indoor (hard)``: the scene kind, and its noise when it is not the default."""
+    """``indoor``, ``indoor (view-correlated, RGB)``: the scene kind, and its label noise and inputs when they
+    are not the default (moderate, RGB + depth)."""
     noise = run.get("noise")
-    return str(run.get("scene") or "scene") + (f" ({noise})" if noise and noise != "moderate" else "")
+    parts = [str(noise)] if noise and noise != "moderate" else []
+    if run.get("inputs") and run["inputs"] != "RGB + depth":
+        parts.append(str(run["inputs"]))
+    return str(run.get("scene") or "scene") + (f" ({', '.join(parts)})" if parts else "")
+
+
+#: x positions of the noise curves: label-noise presets and pose-noise levels, from none to most.
+_LABEL_NOISE_ORDER = ("clean", "moderate", "hard", "view-correlated")
+
+
+def _pose_key(run: dict) -> tuple[float, float]:
+    p = run.get("pose_noise") or (0.0, 0.0)
+    return float(p[0]), float(p[1])
+
+
+def plot_noise_curves(results: dict | str | Path, path: str | Path, *, title: str | None = None) -> Path:
+    """Write the robustness chart: PQ^scene and mIoU against label noise (top) and pose noise (bottom).
+
+    Lines join the means over seeds (bars: ±1 standard deviation; faint dots: single seeds) of the lifted
+    field (solid), of the same runs with pose refinement (dashed, pose row) and of the pseudo-labels the runs
+    learned from (dotted).
+
+    Parameters
+    ----------
+    results : dict, str or Path
+        ``results.json`` of ``lift3d bench`` with ``curves.label_noise`` and/or ``curves.pose_noise`` run
+        records (``noise``, ``pose_noise`` [deg, cm], ``variant``, ``seed``, ``miou``, ``pq_scene``,
+        ``pseudo_labels``).
+    path : str or Path
+        PNG to write (atomically).
+
+    Raises
+    ------
+    InputError
+        No curve runs.
+    """
+    plt = _pyplot()
+    results, where = load_results(results)
+    curves = results.get("curves") if isinstance(results.get("curves"), dict) else {}
+    label_runs = [r for r in curves.get("label_noise") or [] if isinstance(r, dict)]
+    pose_runs = [r for r in curves.get("pose_noise") or [] if isinstance(r, dict)]
+    if not label_runs and not pose_runs:
+        raise InputError(where, "'curves' has no label_noise or pose_noise runs (nothing to plot)")
+    metrics = (("pq_scene", "PQ$^{scene}$"), ("miou", "mIoU"))
+    fig, axes = plt.subplots(2, 2, figsize=(11, 8), squeeze=False)
+
+    def draw(ax, runs, xkey, levels, label_of, metric, series):
+        for k, (name, select, value, style) in enumerate(series):
+            dodge = 0.06 * (k - (len(series) - 1) / 2)  # series side by side, so equal values stay visible
+            xs, means, stds = [], [], []
+            for i, level in enumerate(levels):
+                vals = np.array([_num(value(r, metric)) for r in runs if xkey(r) == level and select(r)])
+                vals = vals[np.isfinite(vals)]
+                if not vals.size:
+                    continue
+                ax.scatter(np.full(vals.size, i + dodge), vals, color=style["color"], alpha=0.25, s=16, lw=0)
+                xs.append(i + dodge)
+                means.append(vals.mean())
+                stds.append(vals.std(ddof=1) if vals.size > 1 else 0.0)
+            if xs:
+                ax.errorbar(xs, means, yerr=stds, label=name, capsize=3, marker="o", ms=6, **style)
+        ax.set_xticks(range(len(levels)))
+        ax.set_xticklabels([label_of(v) for v in levels])
+        ax.set_ylim(0.0, 1.0)
+        ax.grid(alpha=0.3)
+
+    lifted = lambda r, m: r.get(m)  # noqa: E731
+    pseudo = lambda r, m: (r.get("pseudo_labels") or {}).get(m)  # noqa: E731
+    plain = lambda r: r.get("variant", "all") != "pose-refinement"  # noqa: E731
+    refined = lambda r: r.get("variant") == "pose-refinement"  # noqa: E731
+    for col, (metric, label) in enumerate(metrics):
+        ax = axes[0, col]
+        if label_runs:
+            present = {r.get("noise") for r in label_runs}
+            levels = [n for n in _LABEL_NOISE_ORDER if n in present] + sorted(present - set(_LABEL_NOISE_ORDER) - {None})
+            draw(ax, label_runs, lambda r: r.get("noise"), levels, str, metric,
+                 [("lifted", lambda r: True, lifted, {"color": "tab:blue", "ls": "-"}),
+                  ("2D pseudo-labels", lambda r: True, pseudo, {"color": "crimson", "ls": ":"})])
+            ax.set_xlabel("label noise of the simulated segmenter")
+        else:
+            ax.text(0.5, 0.5, "not measured", ha="center", va="center", transform=ax.transAxes)
+        ax.set_ylabel(label)
+        ax = axes[1, col]
+        if pose_runs:
+            levels = sorted({_pose_key(r) for r in pose_runs})
+            series = [("lifted", plain, lifted, {"color": "tab:blue", "ls": "-"})]
+            if any(refined(r) for r in pose_runs):
+                series.append(("lifted, pose refinement", refined, lifted, {"color": "tab:green", "ls": "--"}))
+            series.append(("2D pseudo-labels", plain, pseudo, {"color": "crimson", "ls": ":"}))
+            draw(ax, pose_runs, _pose_key, levels,
+                 lambda v: "none" if not any(v) else f"{v[0]:g}° / {v[1]:g} cm", metric, series)
+            ax.set_xlabel("pose noise of the training views (RMS rotation / translation)")
+        else:
+            ax.text(0.5, 0.5, "not measured", ha="center", va="center", transform=ax.transAxes)
+        ax.set_ylabel(label)
+    handles, names = [], []
+    for ax in axes.ravel():
+        for h, n in zip(*ax.get_legend_handles_labels()):
+            if n not in names:
+                handles.append(h)
+                names.append(n)
+    fig.legend(handles, names, loc="upper center", ncol=len(names), fontsize=9, frameon=False,
+               bbox_to_anchor=(0.5, 0.935))
+    seeds = sorted({r.get("seed") for r in label_runs + pose_runs if r.get("seed") is not None})
+    head = title or f"robustness to label noise and pose noise (mean ± std over seeds {', '.join(map(str, seeds))})"
+    machine = _machine_line(results.get("machine"))
+    fig.suptitle(head + (f"\n{machine}" if machine else ""), fontsize=11)
+    fig.tight_layout(rect=(0, 0, 1, 0.9))
+    return save_figure(fig, path)
 
 
 def plot_scaling(results: dict | str | Path, path: str | Path, *, title: str | None = None) -> Path:
