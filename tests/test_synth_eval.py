@@ -21,7 +21,7 @@ def run(tmp_path_factory) -> dict:
     from lift3d.train.trainer import train
 
     root = tmp_path_factory.mktemp("synth_eval")
-    make_scene(root / "scene", kind="indoor", seed=3, n_views=6, width=24, height=24, progress=False)
+    make_scene(root / "scene", kind="indoor", seed=103, n_views=6, width=24, height=24, progress=False)
     overrides = {"optim": {"steps": 5}, "losses": {"feature": 0.0}, "field": {"grid": {"resolution_cap": 16}},
                  "data": {"rays_per_image": 32, "patch_size": 8}, "trainer": {"eval_images": 1}}
     result = train(root / "scene", preset="fast", output_dir=root / "outputs", overrides=overrides, progress=False,
