@@ -106,6 +106,15 @@ def near_far(origins: Tensor, dirs: Tensor, cfg: SamplingConfig, bounded: bool) 
     return near, torch.full_like(near, cfg.far_plane)
 
 
+
+def _composite(n_rays: int, ray: Tensor, weighted: Tensor) -> Tensor:
+    """Sum weighted sample values per ray: ``weighted`` [K, C] with ray index ``ray`` [K] -> [n_rays, C].
+
+    The sum is kept in ``weighted``'s dtype: under autocast a decoder's bfloat16 output times float32
+    weights is float32, and ``index_add`` needs both sides alike.
+    """
+    return weighted.new_zeros(n_rays, weighted.shape[1]).index_add(0, ray, weighted)
+
 def render_rays(
     field: Field,
     proposals: nn.ModuleList,
@@ -206,7 +215,7 @@ def render_rays(
         rows = idx if geo_row is None else geo_row.index_select(0, idx)
     with record_function("render.field_color"):
         rgb_k = field.color(geo.index_select(0, rows), dirs.index_select(0, ray))
-    rgb = rgb_k.new_zeros(n_rays, 3).index_add(0, ray, w_flat.index_select(0, idx)[:, None] * rgb_k)
+    rgb = _composite(n_rays, ray, w_flat.index_select(0, idx)[:, None] * rgb_k)
     opacity = weights.sum(-1)
 
     if background is None:
@@ -232,9 +241,9 @@ def render_rays(
         with record_function("render.field_labels"):
             sem_s, inst_s = field.labels(u.index_select(0, lidx), geo.index_select(0, lrows))
         lw = w_det.reshape(-1).index_select(0, lidx)[:, None]
-        semantic = sem_s.new_zeros(n_rays, sem_s.shape[1]).index_add(0, lray, lw * sem_s)
+        semantic = _composite(n_rays, lray, lw * sem_s)
         if inst_s is not None:
-            instance = inst_s.new_zeros(n_rays, inst_s.shape[1]).index_add(0, lray, lw * inst_s)
+            instance = _composite(n_rays, lray, lw * inst_s)
 
     distill = weights.new_zeros(())
     if training and prop_levels:

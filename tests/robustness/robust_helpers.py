@@ -141,7 +141,7 @@ def edit_json(path: Path, change: Callable[[Any], Any]) -> None:
 
 
 def scaled_scene(src: Path, dst: Path, s: float) -> Path:
-    """A copy of a scene with every length multiplied by ``s``: camera positions, the scene box, depth
+    """A copy of a scene with every length multiplied by ``s``: camera positions (written and true), the scene box, depth
     (through ``depth_unit_scale_factor``; the PNGs are untouched) and ``gt/points.ply``."""
     import numpy as np
 
@@ -151,8 +151,9 @@ def scaled_scene(src: Path, dst: Path, s: float) -> Path:
 
     def scale(meta):
         for fr in meta["frames"]:
-            for row in fr["transform_matrix"][:3]:
-                row[3] *= s
+            for key in ("transform_matrix", "gt_transform_matrix"):  # the written and the true pose
+                for row in fr.get(key, [])[:3]:
+                    row[3] *= s
         if "scene_box" in meta:
             meta["scene_box"]["aabb"] = (np.asarray(meta["scene_box"]["aabb"]) * s).tolist()
         meta["depth_unit_scale_factor"] = meta.get("depth_unit_scale_factor", 1e-3) * s

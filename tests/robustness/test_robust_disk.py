@@ -55,7 +55,8 @@ def test_disk_full_during_export_keeps_the_previous_export(healthy_run, tmp_path
 def test_disk_full_at_a_checkpoint_keeps_the_last_good_one(synth_scene, healthy_run, tmp_path, capfd):
     """Checkpoints every 10 steps and room for one: step 10 is written, step 20 fails half-way. The run
     stops with one line naming step-000000020.pt; step 10 loads; freeing space and --resume finishes."""
-    ckpt_size = max(p.stat().st_size for p in (healthy_run / "checkpoints").glob("*.pt"))
+    # the smallest: the final checkpoint also holds the occupancy grid the renderer uses, those before do not
+    ckpt_size = min(p.stat().st_size for p in (healthy_run / "checkpoints").glob("*.pt"))
     out = tmp_path / "runs"
     flags = tiny_flags(optim={"steps": 30}, trainer={"checkpoint_every": 10})
     with full_disk(free_bytes=int(ckpt_size * 1.5), match="step-") as disk:
@@ -103,7 +104,8 @@ def test_a_real_full_tmpfs(synth_scene, healthy_run, tmp_path, capfd):
     """The same on a real 4.5 MB filesystem (skipped where tmpfs cannot be mounted): training fills it at
     the second checkpoint, export into a 32 kB one fails on the point cloud; one line each, no temp files,
     and the checkpoint that fitted loads."""
-    ckpt_size = max(p.stat().st_size for p in (healthy_run / "checkpoints").glob("*.pt"))
+    # the smallest: the final checkpoint also holds the occupancy grid the renderer uses, those before do not
+    ckpt_size = min(p.stat().st_size for p in (healthy_run / "checkpoints").glob("*.pt"))
     mnt = tmp_path / "small"
     with tmpfs(mnt, f"{int(ckpt_size * 1.5) // 1024}k"):
         proc = cli(capfd, "train", "--data", synth_scene, "--output-dir", mnt, "--quiet",
