@@ -99,6 +99,7 @@ def add_parser(subparsers, verb: str) -> argparse.ArgumentParser:
 def run(args: argparse.Namespace) -> int:
     # here, not at module level: keeps `lift3d --help` cheap
     from lift3d.bench.runner import SECTIONS, BenchConfig, plan_text, run_benchmark
+    from lift3d.bench.tables import QUICK_SEEDS, REPORT_SEEDS
 
     switches = {"bounded": not args.no_bounded, "ablation": not args.no_ablation, "scaling": not args.no_scaling,
                 "export": not args.no_export, "profile": not args.no_profile, "under-load": not args.no_under_load}
@@ -111,7 +112,6 @@ def run(args: argparse.Namespace) -> int:
     if docs is None and not args.quick and not args.plan:
         checkout_docs = Path(__file__).resolve().parents[2] / "docs"
         docs = checkout_docs if checkout_docs.is_dir() else None
-    from lift3d.bench.tables import QUICK_SEEDS, REPORT_SEEDS
 
     seeds = args.seeds if args.seeds is not None else (QUICK_SEEDS if args.quick else REPORT_SEEDS)
     cfg = BenchConfig(out=Path(args.out), scenes=args.scenes, presets=args.presets, seeds=seeds,
