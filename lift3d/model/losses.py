@@ -9,6 +9,8 @@ never a target; ``-1`` = ignore), instance ids are per-image compact 2D ids (0 =
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import torch
 import torch.nn.functional as F
@@ -156,22 +158,68 @@ def distortion_loss_reference(weights: Tensor, s_edges: Tensor) -> Tensor:
     return (pairwise + (weights ** 2 * widths).sum(-1) / 3.0).mean()
 
 
-def depth_loss(weights: Tensor, t_mid: Tensor, target: Tensor, margin: float) -> Tensor:
+def depth_loss(weights: Tensor, t_mid: Tensor, target: Tensor, margin: float | Tensor) -> Tensor:
     """L_depth = mean over rays with a measured depth ``d`` of ``|Σ_i w_i t_i − d| + Σ_{|t_i − d| > m} w_i``.
 
     The first term is the usual expected-depth L1 (as in depth-supervised NeRFs); the second, a
     line-of-sight term in the spirit of Urban Radiance Fields, puts a price on any weight away from the
     surface, so a fog whose mean happens to sit at ``d`` is not a solution.
 
-    ``weights``, ``t_mid``: ``[R, S]``; ``target``: ``[R]`` distance along the ray (0 = unknown, ignored).
+    ``weights``, ``t_mid``: ``[R, S]``; ``target``: ``[R]`` distance along the ray (0 = unknown, ignored);
+    ``margin``: a number, or ``[R]`` per ray (e.g. from each measurement's standard deviation).
     """
     known = target > 0
     if not bool(known.any()):
         return weights.sum() * 0.0
     w, t, d = weights[known], t_mid[known], target[known][:, None]
+    m = margin[known][:, None] if isinstance(margin, Tensor) else margin
     expected = (w * t).sum(-1)
-    stray = (w * ((t - d).abs() > margin)).sum(-1)
+    stray = (w * ((t - d).abs() > m)).sum(-1)
     return ((expected - d[:, 0]).abs() + stray).mean()
+
+
+def ds_depth_loss(weights: Tensor, t_mid: Tensor, deltas: Tensor, target: Tensor, sigma: Tensor,
+                  eps: float = 1e-3) -> Tensor:
+    """DS-NeRF's depth loss (Deng et al., CVPR 2022): the cross-entropy ``−Σ_i g_i log((w_i + ε) / (1 + ε))`` between the
+    ray's termination weights and the measurement's Gaussian ``g_i = N(t_i; d, σ²) Δt_i``, averaged over the
+    rays with a measured depth.
+
+    It is smallest when the weights follow ``g`` (it is then the entropy of ``g``, 0 when one interval holds
+    it all). Since ``Σ_i w_i ≤ 1``, raising the weight inside ``d ± 2σ`` lowers it everywhere else: fog in
+    front of the point and a second surface behind it both cost. ``ε`` caps what one ray can cost (a wrong match
+    whose depth the views contradict adds at most ``−log ε`` ≈ 6.9) — docs/sfm.md measures a few percent of
+    such matches. ``g`` needs samples within ``σ`` of ``d``: the renderer's depth-guided samples provide them.
+
+    Parameters
+    ----------
+    weights, t_mid, deltas : Tensor
+        ``[R, S]`` rendering weights, interval midpoints and lengths.
+    target : Tensor
+        ``[R]`` distance along the ray (0 = unknown, ignored).
+    sigma : Tensor
+        ``[R]`` its standard deviation (> 0 where ``target`` is known).
+
+    Examples
+    --------
+    All weight in the interval at the measured depth (σ much smaller than the interval) costs nothing:
+
+    >>> import torch
+    >>> t = torch.linspace(0.05, 1.95, 20)[None]
+    >>> w = torch.zeros(1, 20); w[0, 10] = 1.0
+    >>> dt = torch.full((1, 20), 0.1)
+    >>> round(float(ds_depth_loss(w, t, dt, t[:, 10], torch.tensor([0.02]))), 3)
+    0.0
+    """
+    known = target > 0
+    if not bool(known.any()):
+        return weights.sum() * 0.0
+    w, t, dt = weights[known], t_mid[known], deltas[known]
+    d, s = target[known][:, None], sigma[known][:, None].clamp_min(1e-6)
+    g = torch.exp(-0.5 * ((t - d) / s).square()) * dt / (s * math.sqrt(2.0 * math.pi))
+    # The discrete Gaussian of a ray sums to ~1 when samples cover d ± 2σ finely; normalising it keeps the
+    # loss scale independent of how finely they do.
+    g = g / g.sum(-1, keepdim=True).clamp_min(1e-6)
+    return -(g * torch.log((w + eps) / (1.0 + eps))).sum(-1).mean()
 
 
 def feature_loss(features_pred: list[Tensor], features_obs: list[Tensor]) -> Tensor:
