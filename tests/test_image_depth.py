@@ -183,3 +183,19 @@ def test_unknown_image_depth_source_is_a_one_line_input_error(room):
 
     with pytest.raises(InputError, match="--image_depth.source"):
         image_depth_targets(load_scene(room), load_scene(room).split("train"), ImageDepthConfig(source="lidar"))
+
+
+def test_planarity_prior_is_zero_on_planes_and_counts_only_triples_inside_one_valid_segment():
+    from lift3d.model.losses import planar_segment_loss
+
+    u, v = torch.meshgrid(torch.arange(6.0), torch.arange(6.0), indexing="ij")
+    plane = (0.3 + 0.02 * u - 0.01 * v)[None]
+    bowl = (0.3 + 0.01 * (u - 2.5) ** 2)[None]
+    one, ok = torch.ones(1, 6, 6), torch.ones(1, 6, 6, dtype=torch.bool)
+    assert float(planar_segment_loss(plane, one, ok)) < 1e-6
+    assert float(planar_segment_loss(bowl, one, ok)) == pytest.approx(2 * 0.01 * 4 * 6 / (2 * 4 * 6))
+    # Two planes meeting at a crease between two segments: no triple spans the crease.
+    crease = torch.where(u < 3, 0.3 + 0.05 * u, 0.45 - 0.05 * (u - 3))[None]
+    halves = (u >= 3).float()[None]
+    assert float(planar_segment_loss(crease, halves, ok)) < 1e-6 < float(planar_segment_loss(crease, one, ok))
+    assert float(planar_segment_loss(bowl, one, torch.zeros_like(ok))) == 0.0  # nothing valid: 0, not NaN

@@ -29,6 +29,7 @@ from lift3d.model.losses import (
     feature_loss,
     instance_loss,
     segment_consistency_loss,
+    planar_segment_loss,
     segment_groups,
     semantic_loss,
 )
@@ -73,6 +74,10 @@ class LossConfig:
     image_depth: float = 0.0
     """Weight of the depth loss on targets from the images (triangulated points, plane-sweep depth; see
     ``image_depth.*``) in frames without a depth map; 0 = off."""
+    planarity: float = 0.0
+    """Weight of the planarity prior (:func:`planar_segment_loss`): inside every stuff segment of the
+    training patches, second differences of rendered inverse depth are pulled to 0 (exact for planes:
+    walls, floors, ceilings), needing no depth. 0 = off."""
     image_depth_loss: str = "ds"
     """``ds``: DS-NeRF's cross-entropy between each ray's weights and N(d, σ²) (:func:`ds_depth_loss`);
     ``margin``: L_depth with a band of ``max(depth_margin, 2σ)`` per ray (:func:`depth_loss`)."""
@@ -250,3 +255,15 @@ def _distortion(x: LossInputs) -> Tensor | None:
     if x.cfg.distortion <= 0:
         return None
     return x.cfg.distortion * distortion_loss(x.outputs.weights, x.outputs.s_edges)
+
+
+@loss_term("planarity")
+def _planarity(x: LossInputs) -> Tensor | None:
+    b = x.batch
+    if x.cfg.planarity <= 0 or b.n_patch_rays <= 0 or b.cos is None:
+        return None
+    n, ps = b.n_patch_rays, b.patch_size
+    z = x.outputs.depth[:n] * b.cos[:n]
+    inv = (1.0 / z.clamp_min(1e-3)).view(-1, ps, ps)
+    stuff = ((b.semantic[:n] > 0) & (b.instance[:n] == 0)).view(-1, ps, ps)
+    return x.cfg.planarity * planar_segment_loss(inv, b.segment[:n].view(-1, ps, ps), stuff)
