@@ -513,8 +513,8 @@ def _finest(resolution: int) -> str:
 
 def image_depth_lines(info: dict | None) -> list[str]:
     """Summary lines about depth from the images: source, points, median error, coverage, warnings."""
-    if not info:
-        return []
+    if not info or str(info.get("source", "")).startswith("none (every"):
+        return []  # every training frame has its own depth map
     if not info.get("targets"):
         text = f"  depth targets  none from the images ({info.get('source')})"
     else:
