@@ -248,12 +248,23 @@ def test_normalized_frame_and_transform(analytic, surface_points):
     np.testing.assert_array_equal(norm_pts.instance, surface_points.instance)
 
 
-def test_rays_source_backprojects_opaque_rays(analytic, monkeypatch):
-    # The tiny model's proposal grids are untrained: render with dense uniform samples instead, so that the
-    # rendered depth is exact up to the sample spacing and only the back-projection is under test.
-    monkeypatch.setattr(analytic.loaded.model, "proposals", torch.nn.ModuleList())
-    monkeypatch.setattr(analytic.loaded.model.cfg.sampling, "num_samples", 384)
-    pts = extract_labelled_points(analytic.loaded, analytic.scene, source="rays", num_points=2000)
+@contextlib.contextmanager
+def dense_uniform_samples(model):
+    """Render with dense uniform samples instead of the tiny model's untrained proposal grids, so that the
+    rendered depth is exact up to the sample spacing. (Restored by hand: monkeypatch's undo deletes a
+    submodule attribute of an nn.Module instead of restoring it, which broke the module-scoped field.)"""
+    proposals, n = model.proposals, model.cfg.sampling.num_samples
+    model.proposals, model.cfg.sampling.num_samples = torch.nn.ModuleList(), 384
+    try:
+        yield
+    finally:
+        model.proposals, model.cfg.sampling.num_samples = proposals, n
+
+
+def test_rays_source_backprojects_opaque_rays(analytic):
+    # Only the back-projection is under test (see dense_uniform_samples).
+    with dense_uniform_samples(analytic.loaded.model):
+        pts = extract_labelled_points(analytic.loaded, analytic.scene, source="rays", num_points=2000)
     x = _normalized(pts.xyz)
     d_a = np.linalg.norm(x - SHELL_A[0], axis=1)
     d_b = np.linalg.norm(x - BALL_B[0], axis=1)
@@ -262,6 +273,29 @@ def test_rays_source_backprojects_opaque_rays(analytic, monkeypatch):
     assert 0 < len(pts) <= 2000
     assert near_surface.mean() > 0.98
     assert pts.thresholds["opacity"] == 0.5
+
+
+def test_tsdf_source_fuses_the_rendered_depth_of_the_training_views(analytic):
+    with dense_uniform_samples(analytic.loaded.model):
+        pts = extract_labelled_points(analytic.loaded, analytic.scene, source="tsdf", num_points=4000)
+    x = _normalized(pts.xyz)
+    voxel = pts.thresholds["tsdf"]["voxel"]
+    d_a = np.linalg.norm(x - SHELL_A[0], axis=1)
+    d_b = np.linalg.norm(x - BALL_B[0], axis=1)
+    tol = 1.5 * voxel
+    near_surface = (np.abs(d_a - SHELL_A[1]) < tol) | (np.abs(d_b - BALL_B[1]) < tol) | \
+        (np.abs(x[:, 2] - FLOOR_TOP) < tol) | (np.abs(np.linalg.norm(x[:, :2], axis=1) - FLOOR_RADIUS) < tol)
+    assert 0 < len(pts) <= 4000 and near_surface.mean() > 0.95
+    # What no view sees is not fused: nothing of the ball hidden inside the shell.
+    assert not np.any(np.linalg.norm(x - BALL_C[0], axis=1) < BALL_C[1] + 0.02)
+    # Both visible objects are there, labelled by the heads at the points (thing on the balls).
+    assert (d_b < BALL_B[1] + tol).sum() > 50 and (d_a < SHELL_A[1] + tol).sum() > 50
+    on_b = d_b < BALL_B[1] + tol
+    assert (pts.semantic[on_b] == THING).mean() > 0.95
+    info = pts.thresholds["tsdf"]
+    assert info["views"] == 8 and info["fused_pixels"] > 0
+    with pytest.raises(InputError, match="--source"):
+        extract_labelled_points(analytic.loaded, analytic.scene, source="voxels", num_points=10)
 
 
 def test_unbounded_scene_is_contoured_in_contracted_space_and_cropped(tmp_path):

@@ -65,8 +65,9 @@ def add_parser(subparsers, verb: str) -> argparse.ArgumentParser:
                    help="nav2: obstacles are non-floor points this high above the floor, output units (default: "
                         "0.1 1.8 world units)")
     g = p.add_argument_group("points")
-    g.add_argument("--source", default="surface", choices=("surface", "rays"),
-                   help="surface: sample the seen isosurface (default); rays: back-project rendered depth")
+    g.add_argument("--source", default="surface", choices=("surface", "tsdf", "rays"),
+                   help="surface: sample the seen isosurface (default); tsdf: fuse the training views' rendered "
+                        "depth into a TSDF and sample its surface; rays: back-project rendered depth")
     g.add_argument("--num-points", type=int, default=1_000_000, metavar="N",
                    help="points drawn before filtering (default: 1000000)")
     g.add_argument("--frame", default="world", choices=("world", "normalized"),

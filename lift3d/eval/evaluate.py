@@ -36,7 +36,7 @@ from lift3d.errors import InputError
 from lift3d.eval.frame_metrics import FRAME_METRICS, depth_reference
 from lift3d.eval.metrics import miou, pq_scene
 from lift3d.eval.points3d import points3d
-from lift3d.export.pointcloud import extract_labelled_points
+from lift3d.export.pointcloud import SOURCES, extract_labelled_points
 from lift3d.model.run import LoadedRun, load_run
 from lift3d.render.images import render_frame
 from lift3d.utils.atomic import write_text_atomic
@@ -66,6 +66,8 @@ __all__ = [
 #: Class-area filter of the published PQ^scene / mIoU numbers, and the strict variant (no filter).
 MIN_AREA = 0.005
 MIN_AREA_STRICT = 0.0
+#: The point source the 3D block scores by default: the export's default.
+DEFAULT_SOURCE = SOURCES[0]
 #: Keys of a 2D metrics block (the lifted result and the ``pseudo_labels`` baseline share them).
 _PQ_KEYS = ("pq", "sq", "rq")
 
@@ -359,7 +361,8 @@ def points_from_rendered_depth(loaded: LoadedRun, scene: Scene, num_points: int 
     return SimpleNamespace(xyz=xyz, semantic=sem, instance=inst, confidence=conf)
 
 
-def points3d_block(loaded: LoadedRun, scene: Scene, num_points: int = 200_000, progress: bool = True) -> dict | None:
+def points3d_block(loaded: LoadedRun, scene: Scene, num_points: int = 200_000, progress: bool = True,
+                   source: str = DEFAULT_SOURCE) -> dict | None:
     """3D metrics of the run's labelled points against ``gt/points.ply`` (None when there is no 3D GT).
 
     Returns
@@ -370,13 +373,13 @@ def points3d_block(loaded: LoadedRun, scene: Scene, num_points: int = 200_000, p
         ``precision recall fscore`` at ``tau`` (1 % of the GT bounding-box diagonal), ``tau``, ``n_pred``,
         ``n_gt``, ``instance_recall`` (share of GT objects with ≥ 500 points found as one instance with point
         IoU > 0.5) and ``n_instances``, ``n_pred_instances`` (distinct thing instances among the scored
-        points: what the export offers), ``source`` (``export.surface``: the export's surface points),
-        ``num_points``.
+        points: what the export offers), ``source`` (``export.<source>``: the export's points from ``source``,
+        by default the export's default), ``num_points``.
     """
     gt = scene.gt_points()
     if gt is None:
         return None
-    pts, source = extract_labelled_points(loaded, scene, source="surface", num_points=num_points), "export.surface"
+    pts = extract_labelled_points(loaded, scene, source=source, num_points=num_points)
     r = points3d(np.asarray(pts.xyz, np.float64), np.asarray(pts.semantic).astype(np.int64),
                  np.asarray(pts.instance).astype(np.int64), gt["xyz"], np.asarray(gt["semantic"]).astype(np.int64),
                  np.asarray(gt["instance"]).astype(np.int64), things=scene.thing_ids, stuff=scene.stuff_ids,
@@ -389,7 +392,7 @@ def points3d_block(loaded: LoadedRun, scene: Scene, num_points: int = 200_000, p
     # scored (n_instances): an export that splits furniture into pieces finds objects but offers too many.
     pred_inst = np.asarray(pts.instance)
     block["n_pred_instances"] = int(len(np.unique(pred_inst[pred_inst > 0])))
-    block.update(source=source, num_points=int(num_points))
+    block.update(source=f"export.{source}", num_points=int(num_points))
     return block
 
 
@@ -502,6 +505,7 @@ def evaluate_run(
     json_path: str | Path | None = None,
     write: bool = True,
     num_points: int = 200_000,
+    points_source: str = DEFAULT_SOURCE,
     timing_repeats: int = 10,
     chunk_size: int | None = None,
     true_poses: bool = True,
@@ -528,6 +532,8 @@ def evaluate_run(
         Write ``metrics.json`` into the run folder.
     num_points : int
         Size of the labelled point cloud scored in 3D.
+    points_source : str
+        Which export source makes that cloud (``surface``, ``tsdf``, ``rays``; default: the export's).
     timing_repeats : int
         Timed repeats of :func:`time_render` (0 skips the timing).
     chunk_size : int, optional
@@ -578,7 +584,8 @@ def evaluate_run(
 
     metrics["points3d"] = None
     if with_points3d and scene.gt_points_path is not None:
-        metrics["points3d"] = points3d_block(loaded, scene, num_points=num_points, progress=progress)
+        metrics["points3d"] = points3d_block(loaded, scene, num_points=num_points, progress=progress,
+                                             source=points_source)
     elif scene.gt_points_path is None:
         metrics["notes"].append("no gt/points.ply: no 3D metrics")
 

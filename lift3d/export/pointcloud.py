@@ -1,6 +1,6 @@
 """Labelled point clouds from a trained panoptic field (``lift3d export --pointcloud``).
 
-Two sources of 3D points, both labelled by running the field's semantic and instance heads *at the points*
+Three sources of 3D points, all labelled by running the field's semantic and instance heads *at the points*
 (once per point, in chunks; no rays are rendered for them):
 
 ``surface`` (default)
@@ -12,6 +12,10 @@ Two sources of 3D points, both labelled by running the field's semantic and inst
     Unbounded scenes are sampled in contracted space (so the foreground is dense and the background
     sparse, as pixels see it) and written in world coordinates; far background beyond
     :data:`~lift3d.export.mesh.UNBOUNDED_MAX_RADIUS` is skipped.
+``tsdf``
+    What the training views agree on: the rendered depth of every training view fused into a truncated
+    signed distance volume (:mod:`lift3d.export.tsdf`; nerfstudio's ``ns-export tsdf``), its zero level set
+    sampled uniformly by area; colour is the fused rendered colour.
 ``rays``
     nerfstudio's way: render expected depth for random training-camera rays (continuous pixel positions),
     back-project, keep rays whose opacity exceeds 0.5. Colour is the rendered colour. Slower (every point
@@ -60,6 +64,7 @@ from lift3d.export.mesh import (
     view_directions,
     world_from_normalized,
 )
+from lift3d.export.tsdf import fuse_rendered_depth, sample_surface
 from lift3d.field.encodings import uncontract
 from lift3d.model.run import LoadedRun, load_run
 from lift3d.utils.device import resolve_device
@@ -67,6 +72,8 @@ from lift3d.utils.memory import peak_rss_mb
 
 #: Rays source: keep rays whose accumulated opacity exceeds this (nerfstudio's rule).
 RAY_OPACITY_THRESHOLD = 0.5
+#: Point sources of :func:`extract_labelled_points`, the default first.
+SOURCES = ("surface", "tsdf", "rays")
 #: Statistical outlier removal: neighbours per point (nerfstudio and Open3D's tutorial use 20).
 OUTLIER_NEIGHBOURS = 20
 
@@ -168,7 +175,7 @@ def extract_labelled_points(loaded: LoadedRun, scene: Scene, *, source: str = "s
         From :func:`lift3d.model.run.load_run`.
     scene : Scene
         The run's scene (``loaded.scene()``): training cameras decide visibility and ray origins.
-    source : {"surface", "rays"}
+    source : {"surface", "tsdf", "rays"}
     num_points : int
         Points drawn before filtering (default one million).
     frame : {"world", "normalized"}
@@ -200,8 +207,8 @@ def extract_labelled_points(loaded: LoadedRun, scene: Scene, *, source: str = "s
     LabelledPoints
     """
     _check_frame(frame)
-    if source not in ("surface", "rays"):
-        raise InputError("--source", f"unknown source {source!r} (surface or rays)")
+    if source not in SOURCES:
+        raise InputError("--source", f"unknown source {source!r} ({', '.join(SOURCES)})")
     if int(num_points) < 1:
         raise InputError("--num-points", f"must be at least 1, got {num_points}")
     if voxel_size < 0 or not math.isfinite(voxel_size):
@@ -217,6 +224,8 @@ def extract_labelled_points(loaded: LoadedRun, scene: Scene, *, source: str = "s
     if source == "surface":
         cand = _surface_points(loaded, scene, int(num_points), density_threshold, progress, timings,
                                refine=refine_surface)
+    elif source == "tsdf":
+        cand = _tsdf_points(loaded, scene, int(num_points), progress, timings)
     else:
         cand = _ray_points(loaded, scene, int(num_points), progress, timings)
     stats: dict[str, Any] = {"source": source, "drawn": int(len(cand["x"]))}
@@ -340,16 +349,7 @@ def _surface_points(loaded: LoadedRun, scene: Scene, num_points: int, density_th
     if len(seen) == 0:
         raise InputError(loaded.run.path, "no part of the isosurface is seen by a training camera")
     # Area in grid space: uniform in contracted space for unbounded scenes (see module docstring).
-    gtri = surface.grid_vertices[surface.faces[seen]].astype(np.float64)
-    area = 0.5 * np.linalg.norm(np.cross(gtri[:, 1] - gtri[:, 0], gtri[:, 2] - gtri[:, 0]), axis=1)
-    rng = np.random.default_rng(0)
-    cdf = np.cumsum(area)
-    pick = np.minimum(np.searchsorted(cdf, rng.random(num_points) * cdf[-1], side="right"), len(seen) - 1)
-    # Uniform barycentric coordinates (square-root trick).
-    r1 = np.sqrt(rng.random(num_points))[:, None]
-    r2 = rng.random(num_points)[:, None]
-    g = gtri[pick]
-    points_grid = (1 - r1) * g[:, 0] + r1 * (1 - r2) * g[:, 1] + r1 * r2 * g[:, 2]
+    points_grid, pick, _ = sample_surface(surface.grid_vertices.astype(np.float64), surface.faces[seen], num_points)
     x = uncontract(points_grid, surface.contraction) if surface.contraction != "none" else points_grid
     dirs = view_directions(x, cams.centers[seen_by[seen[pick]]])
     t = time.perf_counter()
@@ -364,6 +364,24 @@ def _surface_points(loaded: LoadedRun, scene: Scene, num_points: int, density_th
     return {"x": x, "labels": labels, "rgb": None, "thresholds": thresholds,
             "link_radius_normalized": 2.0 * surface.voxel,
             "surface": {"faces": int(len(surface.faces)), "seen_faces": int(len(seen)), **surface.stats}}
+
+
+def _tsdf_points(loaded: LoadedRun, scene: Scene, num_points: int, progress: bool,
+                 timings: dict[str, float]) -> dict[str, Any]:
+    """Area-uniform samples on the TSDF fusion of the training views' rendered depth, labelled by the heads."""
+    t = time.perf_counter()
+    fused = fuse_rendered_depth(loaded, scene, progress=progress)
+    timings["tsdf"] = time.perf_counter() - t
+    if len(fused.faces) == 0:
+        raise InputError(loaded.run.path, "the fused rendered depth has no surface (no training view renders an "
+                                          f"opacity of {fused.info['min_opacity']} anywhere: train longer)")
+    x, pick, bary = sample_surface(fused.vertices, fused.faces, num_points)
+    rgb = (bary[:, :, None] * fused.colors[fused.faces[pick]].astype(np.float64)).sum(1)
+    t = time.perf_counter()
+    labels = loaded.model.query_labels(x.astype(np.float32), progress=progress)  # colour: the fused one
+    timings["heads"] = time.perf_counter() - t
+    return {"x": x, "labels": labels, "rgb": np.clip(rgb + 0.5, 0, 255).astype(np.uint8),
+            "thresholds": {"tsdf": fused.info}, "link_radius_normalized": 4.0 * fused.voxel}
 
 
 def _ray_points(loaded: LoadedRun, scene: Scene, num_points: int, progress: bool,

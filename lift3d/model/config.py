@@ -57,6 +57,24 @@ class DataConfig:
 
 
 @dataclass
+class ImageDepthConfig:
+    """Depth from the images for training frames without a depth map (docs/sfm.md, "Training with it")."""
+
+    source: str = "auto"
+    """``sparse``: triangulated points (the scene's ``sparse_points`` — ``lift3d triangulate``'s or COLMAP's
+    kept by ``lift3d convert`` — else triangulated from the training frames at the start, cached in the run
+    folder); ``dense``: those and plane-sweep depth maps (the scene's ``mvs_depth_file_path``, else computed
+    at the start); ``none``: colours only; ``auto``: the measured default (``sparse``)."""
+    rays_per_image: int = 32
+    """Rays per image and step drawn among the pixels that have a depth target (besides the random rays;
+    sparse points cover ~1 % of the pixels, so random rays would rarely meet one)."""
+    sigma_scale: float = 1.0
+    """Each target's standard deviation is multiplied by this."""
+    min_sigma: float = 0.005
+    """Smallest standard deviation of a target (normalised units; about 2 cm in an 8 m room)."""
+
+
+@dataclass
 class OptimConfig:
     """Optimiser and schedule (Adam, exponential decay)."""
 
@@ -113,6 +131,7 @@ class Config:
     field: FieldConfig = dc_field(default_factory=FieldConfig)
     sampling: SamplingConfig = dc_field(default_factory=SamplingConfig)
     losses: LossConfig = dc_field(default_factory=LossConfig)
+    image_depth: ImageDepthConfig = dc_field(default_factory=ImageDepthConfig)
     optim: OptimConfig = dc_field(default_factory=OptimConfig)
     trainer: TrainerConfig = dc_field(default_factory=TrainerConfig)
     scene: dict = dc_field(default_factory=dict)
@@ -121,7 +140,7 @@ class Config:
         return to_dict(self)
 
 
-SECTIONS = ("data", "field", "sampling", "losses", "optim", "trainer")
+SECTIONS = ("data", "field", "sampling", "losses", "image_depth", "optim", "trainer")
 
 
 # ------------------------------------------------------------------------------------------ dict <-> dataclass

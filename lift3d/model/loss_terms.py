@@ -18,15 +18,18 @@ from typing import Callable
 import torch
 from torch import Tensor, nn
 
+from lift3d.errors import InputError
 from lift3d.field.base import Field
 from lift3d.model.losses import (
     charbonnier_loss,
     depth_loss,
     disparity_loss,
     distortion_loss,
+    ds_depth_loss,
     feature_loss,
     instance_loss,
     segment_consistency_loss,
+    planar_segment_loss,
     segment_groups,
     semantic_loss,
 )
@@ -68,6 +71,16 @@ class LossConfig:
     depth_margin: float = 0.02
     """Half-width (normalised units) of the band around the measured depth in which L_depth lets weight
     sit; about 7 cm in a 7 m room."""
+    image_depth: float = 0.0
+    """Weight of the depth loss on targets from the images (triangulated points, plane-sweep depth; see
+    ``image_depth.*``) in frames without a depth map; 0 = off."""
+    planarity: float = 0.0
+    """Weight of the planarity prior (:func:`planar_segment_loss`): inside every stuff segment of the
+    training patches, second differences of rendered inverse depth are pulled to 0 (exact for planes:
+    walls, floors, ceilings), needing no depth. 0 = off."""
+    image_depth_loss: str = "ds"
+    """``ds``: DS-NeRF's cross-entropy between each ray's weights and N(d, σ²) (:func:`ds_depth_loss`);
+    ``margin``: L_depth with a band of ``max(depth_margin, 2σ)`` per ray (:func:`depth_loss`)."""
     tv_samples: int = 4096
     """Grid nodes per level and axis sampled for L_tv each step."""
     use_confidence: bool = True
@@ -90,6 +103,11 @@ class RayBatch:
     depth: Tensor | None  # [R] float distance along the ray to the surface (normalised units), 0 = unknown
     n_patch_rays: int
     patch_size: int
+    cos: Tensor | None = None
+    """[R] cosine between each ray and its camera's optical axis (ray distance × cos = z-depth)."""
+    depth_sigma: Tensor | None = None
+    """[R] standard deviation (normalised units, along the ray) of depth targets from the images; 0 where
+    the depth is a sensor's (or unknown). The rays with a target from the images come last."""
 
 
 @dataclass
@@ -210,7 +228,26 @@ def _disparity(x: LossInputs) -> Tensor | None:
 def _depth(x: LossInputs) -> Tensor | None:
     if x.cfg.depth <= 0 or x.batch.depth is None:
         return None
-    return x.cfg.depth * depth_loss(x.outputs.weights, x.outputs.t_mid, x.batch.depth, x.cfg.depth_margin)
+    target = x.batch.depth
+    if x.batch.depth_sigma is not None:  # targets from the images have their own term
+        target = torch.where(x.batch.depth_sigma > 0, torch.zeros_like(target), target)
+    return x.cfg.depth * depth_loss(x.outputs.weights, x.outputs.t_mid, target, x.cfg.depth_margin)
+
+
+@loss_term("image_depth")
+def _image_depth(x: LossInputs) -> Tensor | None:
+    b = x.batch
+    if x.cfg.image_depth <= 0 or b.depth is None or b.depth_sigma is None:
+        return None
+    target = torch.where(b.depth_sigma > 0, b.depth, torch.zeros_like(b.depth))
+    if x.cfg.image_depth_loss not in ("ds", "margin"):
+        raise InputError("--losses.image-depth-loss", f"unknown loss {x.cfg.image_depth_loss!r} (ds or margin)")
+    if x.cfg.image_depth_loss == "margin":
+        margin = torch.clamp_min(2.0 * b.depth_sigma, x.cfg.depth_margin)
+        value = depth_loss(x.outputs.weights, x.outputs.t_mid, target, margin)
+    else:
+        value = ds_depth_loss(x.outputs.weights, x.outputs.t_mid, x.outputs.deltas, target, b.depth_sigma)
+    return x.cfg.image_depth * value
 
 
 @loss_term("distortion")
@@ -218,3 +255,15 @@ def _distortion(x: LossInputs) -> Tensor | None:
     if x.cfg.distortion <= 0:
         return None
     return x.cfg.distortion * distortion_loss(x.outputs.weights, x.outputs.s_edges)
+
+
+@loss_term("planarity")
+def _planarity(x: LossInputs) -> Tensor | None:
+    b = x.batch
+    if x.cfg.planarity <= 0 or b.n_patch_rays <= 0 or b.cos is None:
+        return None
+    n, ps = b.n_patch_rays, b.patch_size
+    z = x.outputs.depth[:n] * b.cos[:n]
+    inv = (1.0 / z.clamp_min(1e-3)).view(-1, ps, ps)
+    stuff = ((b.semantic[:n] > 0) & (b.instance[:n] == 0)).view(-1, ps, ps)
+    return x.cfg.planarity * planar_segment_loss(inv, b.segment[:n].view(-1, ps, ps), stuff)

@@ -9,6 +9,8 @@ never a target; ``-1`` = ignore), instance ids are per-image compact 2D ids (0 =
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 import torch
 import torch.nn.functional as F
@@ -156,22 +158,107 @@ def distortion_loss_reference(weights: Tensor, s_edges: Tensor) -> Tensor:
     return (pairwise + (weights ** 2 * widths).sum(-1) / 3.0).mean()
 
 
-def depth_loss(weights: Tensor, t_mid: Tensor, target: Tensor, margin: float) -> Tensor:
+def depth_loss(weights: Tensor, t_mid: Tensor, target: Tensor, margin: float | Tensor) -> Tensor:
     """L_depth = mean over rays with a measured depth ``d`` of ``|Σ_i w_i t_i − d| + Σ_{|t_i − d| > m} w_i``.
 
     The first term is the usual expected-depth L1 (as in depth-supervised NeRFs); the second, a
     line-of-sight term in the spirit of Urban Radiance Fields, puts a price on any weight away from the
     surface, so a fog whose mean happens to sit at ``d`` is not a solution.
 
-    ``weights``, ``t_mid``: ``[R, S]``; ``target``: ``[R]`` distance along the ray (0 = unknown, ignored).
+    ``weights``, ``t_mid``: ``[R, S]``; ``target``: ``[R]`` distance along the ray (0 = unknown, ignored);
+    ``margin``: a number, or ``[R]`` per ray (e.g. from each measurement's standard deviation).
     """
     known = target > 0
     if not bool(known.any()):
         return weights.sum() * 0.0
     w, t, d = weights[known], t_mid[known], target[known][:, None]
+    m = margin[known][:, None] if isinstance(margin, Tensor) else margin
     expected = (w * t).sum(-1)
-    stray = (w * ((t - d).abs() > margin)).sum(-1)
+    stray = (w * ((t - d).abs() > m)).sum(-1)
     return ((expected - d[:, 0]).abs() + stray).mean()
+
+
+def ds_depth_loss(weights: Tensor, t_mid: Tensor, deltas: Tensor, target: Tensor, sigma: Tensor,
+                  eps: float = 1e-3) -> Tensor:
+    """DS-NeRF's depth loss (Deng et al., CVPR 2022): the cross-entropy ``−Σ_i g_i log((w_i + ε) / (1 + ε))`` between the
+    ray's termination weights and the measurement's Gaussian ``g_i = N(t_i; d, σ²) Δt_i``, averaged over the
+    rays with a measured depth.
+
+    It is smallest when the weights follow ``g`` (it is then the entropy of ``g``, 0 when one interval holds
+    it all). Since ``Σ_i w_i ≤ 1``, raising the weight inside ``d ± 2σ`` lowers it everywhere else: fog in
+    front of the point and a second surface behind it both cost. ``ε`` caps what one ray can cost (a wrong match
+    whose depth the views contradict adds at most ``−log ε`` ≈ 6.9) — docs/sfm.md measures a few percent of
+    such matches. ``g`` needs samples within ``σ`` of ``d``: the renderer's depth-guided samples provide them.
+
+    Parameters
+    ----------
+    weights, t_mid, deltas : Tensor
+        ``[R, S]`` rendering weights, interval midpoints and lengths.
+    target : Tensor
+        ``[R]`` distance along the ray (0 = unknown, ignored).
+    sigma : Tensor
+        ``[R]`` its standard deviation (> 0 where ``target`` is known).
+
+    Examples
+    --------
+    All weight in the interval at the measured depth (σ much smaller than the interval) costs nothing:
+
+    >>> import torch
+    >>> t = torch.linspace(0.05, 1.95, 20)[None]
+    >>> w = torch.zeros(1, 20); w[0, 10] = 1.0
+    >>> dt = torch.full((1, 20), 0.1)
+    >>> round(float(ds_depth_loss(w, t, dt, t[:, 10], torch.tensor([0.02]))), 3)
+    0.0
+    """
+    known = target > 0
+    if not bool(known.any()):
+        return weights.sum() * 0.0
+    w, t, dt = weights[known], t_mid[known], deltas[known]
+    d, s = target[known][:, None], sigma[known][:, None].clamp_min(1e-6)
+    g = torch.exp(-0.5 * ((t - d) / s).square()) * dt / (s * math.sqrt(2.0 * math.pi))
+    # The discrete Gaussian of a ray sums to ~1 when samples cover d ± 2σ finely; normalising it keeps the
+    # loss scale independent of how finely they do.
+    g = g / g.sum(-1, keepdim=True).clamp_min(1e-6)
+    return -(g * torch.log((w + eps) / (1.0 + eps))).sum(-1).mean()
+
+
+def planar_segment_loss(inv_depth: Tensor, segment: Tensor, valid: Tensor) -> Tensor:
+    """Second differences of rendered inverse depth inside 2D segments: mean ``|q_{i-1} − 2 q_i + q_{i+1}|``
+    over every row and column triple of a patch whose three pixels are valid and share one segment.
+
+    The inverse z-depth of a plane is affine in the pixel coordinates, so its second differences vanish:
+    walls, floors and ceilings seen through one stuff segment are pulled towards planes. The L1 penalty lets a
+    segment hold a few creases (two walls meeting in a corner).
+
+    Parameters
+    ----------
+    inv_depth : Tensor
+        ``[P, s, s]`` inverse z-depth of ``P`` square patches.
+    segment : Tensor
+        ``[P, s, s]`` int segment ids (compared for equality only).
+    valid : Tensor
+        ``[P, s, s]`` bool: pixels the prior applies to (e.g. stuff classes).
+
+    Examples
+    --------
+    >>> import torch
+    >>> u, v = torch.meshgrid(torch.arange(4.0), torch.arange(4.0), indexing="ij")
+    >>> plane = (0.3 + 0.02 * u - 0.01 * v)[None]
+    >>> seg, ok = torch.ones(1, 4, 4), torch.ones(1, 4, 4, dtype=torch.bool)
+    >>> float(planar_segment_loss(plane, seg, ok)) < 1e-6
+    True
+    """
+    terms = []
+    for dim in (1, 2):
+        n = inv_depth.shape[dim]
+        a, b, c = (inv_depth.narrow(dim, k, n - 2) for k in range(3))
+        sa, sb, sc = (segment.narrow(dim, k, n - 2) for k in range(3))
+        va, vb, vc = (valid.narrow(dim, k, n - 2) for k in range(3))
+        ok = va & vb & vc & (sa == sb) & (sb == sc)
+        terms.append(((a - 2 * b + c).abs() * ok, ok))
+    num = sum(t.sum() for t, _ in terms)
+    den = sum(ok.sum() for _, ok in terms)
+    return num / den.clamp_min(1)
 
 
 def feature_loss(features_pred: list[Tensor], features_obs: list[Tensor]) -> Tensor:

@@ -91,18 +91,18 @@ class PanopticModel(nn.Module):
 
     def render(self, origins: Tensor, dirs: Tensor, *, training: bool = False, with_labels: bool = True,
                generator: torch.Generator | None = None, proposal_anneal: float = 1.0,
-               depth_target: Tensor | None = None) -> RenderOutputs:
+               depth_target: Tensor | None = None, depth_spread: Tensor | None = None) -> RenderOutputs:
         """Render a batch of normalised-space rays (with gradients); see :func:`render_rays`."""
         return render_rays(self.field, self.proposals, origins, dirs, self.cfg.sampling, bounded=self.bounded,
                            training=training, with_labels=with_labels, generator=generator,
-                           proposal_anneal=proposal_anneal, depth_target=depth_target)
+                           proposal_anneal=proposal_anneal, depth_target=depth_target, depth_spread=depth_spread)
 
     def forward(self, origins: Tensor, dirs: Tensor, training: bool = True, with_labels: bool = True,
                 generator: torch.Generator | None = None, proposal_anneal: float = 1.0,
-                depth_target: Tensor | None = None) -> RenderOutputs:
+                depth_target: Tensor | None = None, depth_spread: Tensor | None = None) -> RenderOutputs:
         """Same as :meth:`render`; the entry point DistributedDataParallel wraps."""
         return self.render(origins, dirs, training=training, with_labels=with_labels, generator=generator,
-                           proposal_anneal=proposal_anneal, depth_target=depth_target)
+                           proposal_anneal=proposal_anneal, depth_target=depth_target, depth_spread=depth_spread)
 
     def get_loss_dict(self, outputs: RenderOutputs, batch: RayBatch, *, progress: float,
                       generator: torch.Generator | None = None, perceptual: nn.Module | None = None) -> dict[str, Tensor]:

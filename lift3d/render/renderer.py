@@ -92,6 +92,7 @@ class RenderOutputs:
     t_mid: Tensor  # [R, S]
     s_edges: Tensor  # [R, S+1] sample edges in the ray coordinate normalised to [0, 1] between near and far
     distill: Tensor  # scalar: Σ over proposal levels of the inter-level loss (0 without proposals)
+    deltas: Tensor | None = None  # [R, S] interval lengths Δt (normalised units)
 
 
 def near_far(origins: Tensor, dirs: Tensor, cfg: SamplingConfig, bounded: bool) -> tuple[Tensor, Tensor]:
@@ -129,6 +130,7 @@ def render_rays(
     generator: torch.Generator | None = None,
     proposal_anneal: float = 1.0,
     depth_target: Tensor | None = None,
+    depth_spread: Tensor | None = None,
 ) -> RenderOutputs:
     """Render a batch of rays.
 
@@ -154,6 +156,9 @@ def render_rays(
     depth_target : Tensor, optional
         ``[R]`` measured distance along each ray (normalised units, 0 = unknown): adds
         ``cfg.depth_guide_samples`` samples around it when training.
+    depth_spread : Tensor, optional
+        ``[R]`` half-width of those samples per ray (e.g. twice a measurement's standard deviation);
+        ``cfg.depth_guide_spread`` where it is 0 or not given.
     """
     n_rays = origins.shape[0]
     spacing = "linear" if bounded else "lindisp"
@@ -189,8 +194,10 @@ def render_rays(
     else:
         s_edges = uniform_edges(near, far, cfg.num_samples, spacing, training, generator)
     if training and depth_target is not None and cfg.depth_guide_samples > 0:
-        s_edges = add_depth_guided_edges(s_edges, depth_target, near, far, cfg.depth_guide_samples,
-                                         cfg.depth_guide_spread, spacing)
+        spread = cfg.depth_guide_spread
+        if depth_spread is not None:
+            spread = torch.where(depth_spread > 0, depth_spread, torch.full_like(depth_spread, spread))
+        s_edges = add_depth_guided_edges(s_edges, depth_target, near, far, cfg.depth_guide_samples, spread, spacing)
 
     x, t_mid, deltas = points(s_edges)
     n_samples = t_mid.shape[1]
@@ -254,7 +261,7 @@ def render_rays(
     s_near, s_far = spacing_fn(near, spacing)[:, None], spacing_fn(far, spacing)[:, None]
     s_unit = (s_edges - s_near) / (s_far - s_near).clamp_min(1e-9)
     return RenderOutputs(rgb=rgb, depth=depth, opacity=opacity, semantic=semantic, instance=instance,
-                         weights=weights, t_mid=t_mid, s_edges=s_unit, distill=distill)
+                         weights=weights, t_mid=t_mid, s_edges=s_unit, distill=distill, deltas=deltas)
 
 
 def _is_plain_proposal(prop: nn.Module) -> bool:
@@ -357,16 +364,17 @@ def geometry_where_needed(field: Field, x: Tensor, u: Tensor, valid: Tensor, del
     return sigma_all.view(n_rays, n_samples), geo, geo_row, flat
 
 
-def add_depth_guided_edges(s_edges: Tensor, depth: Tensor, near: Tensor, far: Tensor, n: int, spread: float,
-                           spacing: str) -> Tensor:
+def add_depth_guided_edges(s_edges: Tensor, depth: Tensor, near: Tensor, far: Tensor, n: int,
+                           spread: float | Tensor, spacing: str) -> Tensor:
     """Merge ``n`` edges evenly spread over ``depth ± spread`` into each ray's sorted edges.
 
     ``s_edges``: ``[R, S+1]`` (spacing coordinate); ``depth``, ``near``, ``far``: ``[R]`` distances (depth 0 =
-    unknown). Returns ``[R, S+1+n]`` sorted edges. Rays without a depth get copies of their last edge:
-    zero-length intervals, which carry no weight.
+    unknown); ``spread``: a number or ``[R]``. Returns ``[R, S+1+n]`` sorted edges. Rays without a depth get
+    copies of their last edge: zero-length intervals, which carry no weight.
     """
-    offsets = torch.linspace(-spread, spread, n, device=depth.device, dtype=depth.dtype)
-    t = (depth[:, None] + offsets[None, :]).clamp(min=near[:, None], max=far[:, None])
+    unit = torch.linspace(-1.0, 1.0, n, device=depth.device, dtype=depth.dtype)[None, :]
+    offsets = unit * (spread[:, None] if isinstance(spread, Tensor) else spread)
+    t = (depth[:, None] + offsets).clamp(min=near[:, None], max=far[:, None])
     extra = spacing_fn(t, spacing)
     extra = torch.where((depth > 0)[:, None], extra, s_edges[:, -1:].expand_as(extra))
     return torch.sort(torch.cat([s_edges, extra], -1), -1).values

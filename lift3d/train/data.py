@@ -4,6 +4,10 @@ Per pixel the cache holds 3 bytes of colour, int16 semantic channel and per-fram
 per-frame segment id, (when not all ones) a float16 confidence and (when depth supervision is on) a
 float32 depth: ~13–17 bytes, not ``H·W·C`` floats.
 Frames may differ in size (the pixels of all frames are concatenated).
+
+Depth targets from the images (:mod:`lift3d.train.image_depth`: triangulated points, plane-sweep depth) are
+kept as a list of (frame, sub-pixel position, depth, sigma), and every step draws a share of its rays from
+them: sparse points cover about 1 % of the pixels, so random rays would rarely meet one.
 """
 
 from __future__ import annotations
@@ -15,6 +19,7 @@ from lift3d.data.scene import Scene
 from lift3d.model.labels import LabelSpace
 from lift3d.model.loss_terms import RayBatch
 from lift3d.render.rays import RayGenerator
+from lift3d.train.image_depth import DepthTargets
 from lift3d.utils.progress import progress_bar
 
 
@@ -33,10 +38,18 @@ class TrainingData:
     depth_scale : float, optional
         Load the frames' depth maps (``depth_file_path``), converted to normalised units with this scale
         (normalised units per world unit); None = no depth.
+    targets : DepthTargets, optional
+        Depth targets from the images (world units) for frames without a depth map.
+    target_scale : float
+        Normalised units per world unit (converts ``targets``).
+    target_sigma_scale, target_min_sigma : float
+        A target's standard deviation along its ray is ``max(min_sigma, sigma_scale · σ) / cos`` (normalised
+        units; ``cos`` between the ray and the optical axis, as for its depth).
     """
 
     def __init__(self, scene: Scene, frames: np.ndarray, rays: RayGenerator, labels: LabelSpace | None = None,
-                 progress: bool = True, depth_scale: float | None = None):
+                 progress: bool = True, depth_scale: float | None = None, targets: DepthTargets | None = None,
+                 target_scale: float = 1.0, target_sigma_scale: float = 1.0, target_min_sigma: float = 0.0):
         self.frames = np.asarray(frames, np.int64)
         self.rays = rays
         self.device = rays.device
@@ -50,7 +63,8 @@ class TrainingData:
         inst = np.empty(n, np.int16)
         seg = np.empty(n, np.int32)
         conf = np.empty(n, np.float16)
-        depth = np.zeros(n, np.float32) if depth_scale is not None and scene.has_depth else None
+        with_depth = depth_scale is not None and any(scene.frames[int(i)].depth_path is not None for i in self.frames)
+        depth = np.zeros(n, np.float32) if with_depth else None
         mask = None
         self.max_instances_per_frame = 0
         for k, i in enumerate(progress_bar(self.frames, desc="load frames", disable=not progress)):
@@ -91,6 +105,34 @@ class TrainingData:
         self.widths = torch.as_tensor(widths, device=dev)
         self.heights = torch.as_tensor(heights, device=dev)
         self.offsets_t = torch.as_tensor(self.offsets, device=dev)
+        self._set_targets(targets, target_scale, target_sigma_scale, target_min_sigma)
+
+    def _set_targets(self, targets: DepthTargets | None, scale: float, sigma_scale: float, min_sigma: float) -> None:
+        """Keep the targets sorted by training frame, in normalised units, with per-frame offsets."""
+        dev = self.device
+        self.min_sigma = float(min_sigma)
+        local_of = {int(f): k for k, f in enumerate(self.frames)}
+        if targets is None or len(targets) == 0:
+            self.num_targets = 0
+            self.target_offsets = torch.zeros(len(self) + 1, dtype=torch.long, device=dev)
+            return
+        local = np.array([local_of.get(int(f), -1) for f in targets.frame], np.int64)
+        keep = local >= 0
+        order = np.argsort(local[keep], kind="stable")
+        local = local[keep][order]
+        u, v = targets.u[keep][order], targets.v[keep][order]
+        w, h = self.widths.cpu().numpy()[local], self.heights.cpu().numpy()[local]
+        col = np.clip(np.round(u).astype(np.int64), 0, w - 1)
+        row = np.clip(np.round(v).astype(np.int64), 0, h - 1)
+        self.num_targets = int(len(local))
+        self.target_frame = torch.from_numpy(local).to(dev)
+        self.target_flat = torch.from_numpy(self.offsets[local] + row * w + col).to(dev)
+        self.target_u = torch.from_numpy(u.astype(np.float32)).to(dev)
+        self.target_v = torch.from_numpy(v.astype(np.float32)).to(dev)
+        self.target_z = torch.from_numpy((targets.z[keep][order] * scale).astype(np.float32)).to(dev)
+        self.target_sigma = torch.from_numpy((targets.sigma[keep][order] * scale * sigma_scale).astype(np.float32)).to(dev)
+        counts = np.bincount(local, minlength=len(self))
+        self.target_offsets = torch.as_tensor(np.concatenate([[0], np.cumsum(counts)]), dtype=torch.long, device=dev)
 
     def __len__(self) -> int:
         return len(self.frames)
@@ -105,9 +147,10 @@ class TrainingData:
         return (counts / counts[1:].sum().clamp_min(1)).cpu().numpy()
 
     def sample(self, images_per_batch: int, rays_per_image: int, patch_size: int,
-               generator: torch.Generator) -> RayBatch:
-        """Draw ``images_per_batch`` frames; from each a ``patch_size²`` patch and ``rays_per_image`` random
-        pixels (masked pixels are redrawn once and then dropped)."""
+               generator: torch.Generator, target_rays_per_image: int = 0) -> RayBatch:
+        """Draw ``images_per_batch`` frames; from each a ``patch_size²`` patch, ``rays_per_image`` random
+        pixels (masked pixels are dropped) and ``target_rays_per_image`` rays through its depth targets from
+        the images (drawn with replacement; none from a frame without targets). Those come last."""
         dev = self.device
         k = min(images_per_batch, len(self))
         # Draws come from the generator's device (the training device) and stay there.
@@ -137,8 +180,28 @@ class TrainingData:
             keep = self.mask[flat]
             keep[:n_patch] = True  # patches stay whole (L_feat needs the full patch)
             u, v, f, flat = u[keep], v[keep], f[keep], flat[keep]
-        scene_frame = torch.as_tensor(self.frames, device=dev)[f]
-        origins, dirs, cos_axis = self.rays.rays(scene_frame, u, v)
+        scene_frames = torch.as_tensor(self.frames, device=dev)
+        origins, dirs, cos_axis = self.rays.rays(scene_frames[f], u, v)
+        depth = None if self.depth is None else self.depth[flat] / cos_axis.clamp_min(1e-6)
+        sigma = None
+        if self.num_targets and target_rays_per_image > 0:
+            first, count = self.target_offsets[local], self.target_offsets[local + 1] - self.target_offsets[local]
+            r = torch.rand(k, target_rays_per_image, generator=generator).to(dev)
+            pick = (first[:, None] + (r * count[:, None].float()).long().clamp_max((count - 1).clamp_min(0)[:, None]))
+            pick = pick[(count > 0)[:, None].expand_as(pick)]
+            t_flat = self.target_flat[pick]
+            if self.mask is not None:
+                pick, t_flat = pick[self.mask[t_flat]], t_flat[self.mask[t_flat]]
+            t_f = self.target_frame[pick]
+            t_o, t_d, t_cos = self.rays.rays(scene_frames[t_f], self.target_u[pick], self.target_v[pick])
+            cos = t_cos.clamp_min(1e-6)
+            t_sigma = (self.target_sigma[pick] / cos).clamp_min(self.min_sigma)
+            n_plain = len(flat)
+            origins, dirs = torch.cat([origins, t_o]), torch.cat([dirs, t_d])
+            depth = torch.cat([depth if depth is not None else origins.new_zeros(n_plain), self.target_z[pick] / cos])
+            sigma = torch.cat([origins.new_zeros(n_plain), t_sigma])
+            flat, f = torch.cat([flat, t_flat]), torch.cat([f, t_f])
+            cos_axis = torch.cat([cos_axis, t_cos])
         return RayBatch(
             origins=origins,
             dirs=dirs,
@@ -148,7 +211,9 @@ class TrainingData:
             segment=self.segment[flat].long(),
             confidence=None if self.confidence is None else self.confidence[flat].float(),
             image=f,
-            depth=None if self.depth is None else self.depth[flat] / cos_axis.clamp_min(1e-6),
+            depth=depth,
             n_patch_rays=n_patch,
             patch_size=ps,
+            depth_sigma=sigma,
+            cos=cos_axis,
         )

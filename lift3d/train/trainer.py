@@ -24,7 +24,7 @@ from torch.profiler import record_function
 from lift3d import __version__
 from lift3d.data.scene import Scene, load_scene
 from lift3d.errors import InputError, TrainingDiverged
-from lift3d.eval.evaluate import compute_2d_metrics, gt_labels, pseudo_labels, render_split
+from lift3d.eval.evaluate import compute_2d_metrics, gt_labels, json_safe, pseudo_labels, render_split
 from lift3d.eval.frame_metrics import frame_psnrs
 from lift3d.eval.metrics import psnr
 from lift3d.field import grids
@@ -38,6 +38,8 @@ from lift3d.model.run_folder import RunFolder
 from lift3d.render.rays import RayGenerator
 from lift3d.render.renderer import RenderOutputs
 from lift3d.train.data import TrainingData
+from lift3d.train.image_depth import CACHE_DIR as IMAGE_DEPTH_CACHE
+from lift3d.train.image_depth import image_depth_targets
 from lift3d.train.distributed import DistContext, all_ranks_agree, broadcast_object, init_distributed, shutdown
 from lift3d.train.observed import observed_cells
 from lift3d.utils.device import available_cpus, resolve_device, set_threads
@@ -92,7 +94,17 @@ def resolve_label_sizes(cfg: Config, data: TrainingData) -> None:
         why_v = "set by the user"
     cfg.scene.update(labels=labels.to_dict(), why_instance_channels=why_v,
                      max_instances_per_frame=int(data.max_instances_per_frame),
-                     depth_supervision=data.depth is not None)
+                     depth_supervision=data.depth is not None, inputs=input_kind(cfg, data))
+
+
+def input_kind(cfg: Config, data: TrainingData) -> str:
+    """What supervises geometry besides the colours: ``RGB + depth`` (depth maps), ``RGB + SfM points``
+    (depth from the images: triangulated points, plane-sweep depth) or ``RGB``; the benchmark's *inputs*."""
+    if data.depth is not None and cfg.losses.depth > 0:
+        return "RGB + depth"
+    if data.num_targets > 0 and cfg.losses.image_depth > 0:
+        return "RGB + SfM points"
+    return "RGB"
 
 
 # ------------------------------------------------------------------------------------------ training
@@ -131,8 +143,16 @@ class Trainer:
         self.ctx = dist_ctx or DistContext()
         self.progress = progress and self.ctx.is_main
         self.rays = RayGenerator(scene.cameras, norm.c2w_normalized(scene.cameras.c2w), device)
+        targets = None
+        if cfg.losses.image_depth > 0:
+            # A resumed run reads the points it triangulated from its own folder (cached at the first start).
+            targets = image_depth_targets(scene, scene.split("train"), cfg.image_depth, cache=run.path / IMAGE_DEPTH_CACHE,
+                                          progress=self.progress)
+            cfg.scene["image_depth"] = json_safe(targets.info)
         self.data = TrainingData(scene, scene.split("train"), self.rays, labels, progress=self.progress,
-                                 depth_scale=norm.scale if cfg.losses.depth > 0 else None)
+                                 depth_scale=norm.scale if cfg.losses.depth > 0 else None, targets=targets,
+                                 target_scale=norm.scale, target_sigma_scale=cfg.image_depth.sigma_scale,
+                                 target_min_sigma=cfg.image_depth.min_sigma)
         resolve_label_sizes(cfg, self.data)
         self.model = PanopticModel(cfg, self.data.labels).to(device)
         if cfg.field.observed_resolution > 0:  # (a resumed run loads its own lattice with the checkpoint)
@@ -227,9 +247,12 @@ class Trainer:
         self.model.field.set_training_progress(progress)
         anneal_steps = self.cfg.sampling.proposal_anneal_steps
         anneal = min(1.0, self.step / anneal_steps) if anneal_steps > 0 else 1.0
-        depth_target = batch.depth if self.cfg.losses.depth > 0 else None
+        depth_target = batch.depth if self.cfg.losses.depth > 0 or self.cfg.losses.image_depth > 0 else None
+        # Samples around a target from the images span ±2σ of it (DS-NeRF's Gaussian needs them).
+        spread = 2.0 * batch.depth_sigma if depth_target is not None and batch.depth_sigma is not None else None
         out = self.forward_model(batch.origins, batch.dirs, training=True, with_labels=self.model.trains_labels,
-                                 generator=self.generator, proposal_anneal=anneal, depth_target=depth_target)
+                                 generator=self.generator, proposal_anneal=anneal, depth_target=depth_target,
+                                 depth_spread=spread)
         terms = self.model.get_loss_dict(out, batch, progress=progress, generator=self.generator,
                                          perceptual=self.perceptual)
         terms["total"] = sum(terms.values())
@@ -249,7 +272,8 @@ class Trainer:
                 self.update_occupancy()
         # record_function labels name the phases in `lift3d bench`'s profile (no cost without a profiler).
         with record_function("step.sample_batch"):
-            batch = self.data.sample(self.images_per_rank, d.rays_per_image, d.patch_size, self.generator)
+            batch = self.data.sample(self.images_per_rank, d.rays_per_image, d.patch_size, self.generator,
+                                     target_rays_per_image=self.cfg.image_depth.rays_per_image)
         factor = _lr_factor(self.step, self.cfg, self.elapsed())
         for group in self.optimizer.param_groups:
             group["lr"] = group["base_lr"] * factor
@@ -469,6 +493,9 @@ def _train(data, preset, output_dir, overrides, resume, progress, print_summary,
     result.summary["parameters"] = count_parameters(trainer.model)
     result.summary["finest_resolution"] = trainer.model.field.finest_resolution
     result.summary["depth_supervision"] = trainer.data.depth is not None
+    result.summary["inputs"] = cfg.scene.get("inputs", "RGB")
+    if "image_depth" in cfg.scene:
+        result.summary["image_depth"] = cfg.scene["image_depth"]
     if print_summary and ctx.is_main:
         print(format_summary(result, cfg))
     return result
@@ -484,6 +511,22 @@ def _finest(resolution: int) -> str:
     return f", grid {resolution}^3" if resolution else ""
 
 
+def image_depth_lines(info: dict | None) -> list[str]:
+    """Summary lines about depth from the images: source, points, median error, coverage, warnings."""
+    if not info or str(info.get("source", "")).startswith("none (every"):
+        return []  # every training frame has its own depth map
+    if not info.get("targets"):
+        text = f"  depth targets  none from the images ({info.get('source')})"
+    else:
+        text = (f"  depth targets  {info['targets']} from the images ({info['source']}: {info.get('points', 0)} points "
+                f"from {info.get('points_from')}, median reprojection error {info.get('median_error_px')} px, "
+                f"{info.get('observations', 0)} observations")
+        if "dense_coverage" in info:
+            text += f", plane sweep {100 * info['dense_coverage']:.1f} % of pixels"
+        text += f"; {info.get('seconds', 0):.0f} s)"
+    return [text] + [f"  warning        {w}" for w in info.get("warnings", [])]
+
+
 def format_summary(result: TrainResult, cfg: Config) -> str:
     ev = result.summary.get("eval", {})
     lines = [
@@ -496,6 +539,7 @@ def format_summary(result: TrainResult, cfg: Config) -> str:
         f"{'bounded' if cfg.field.contraction == 'none' else 'unbounded (' + cfg.field.contraction + ')'}"
         f"{', depth-supervised' if cfg.scene.get('depth_supervision') else ''}",
     ]
+    lines += image_depth_lines(cfg.scene.get("image_depth"))
     if ev:
         lines.append(f"  held-out views PSNR {ev['psnr']:.2f} dB, mIoU {ev['miou']:.3f}, PQ^scene {ev['pq_scene']:.3f} "
                      f"(against {ev['against'].replace('_', '-')}; run `lift3d eval --run {result.run.path}` for all metrics)")

@@ -1,0 +1,234 @@
+"""Depth targets from the images themselves, for training frames without a depth map (docs/sfm.md).
+
+With the poses known, triangulated points say where some surfaces are: a ray through the pixel where a
+training frame sees a point should end at the point's depth, give or take its standard deviation. That is
+what a depth-supervised NeRF (DS-NeRF, Deng et al., CVPR 2022) trains with. Where the targets come from:
+
+* the scene's own sparse points (``sparse_points`` in ``transforms.json``: ``lift3d triangulate``'s, or
+  COLMAP's ``points3D`` kept by ``lift3d convert``);
+* otherwise points triangulated here at the start of training (:func:`lift3d.sfm.triangulate_scene` on the
+  training frames), cached in the run folder so that a resumed run does not redo them;
+* with ``image_depth.source dense``, also plane-sweep depth maps (the scene's ``mvs_depth_file_path``, or
+  :func:`lift3d.sfm.plane_sweep_scene` here, cached likewise).
+
+Too few points (too little texture, overlap or baseline) is a warning recorded in ``config.yml`` and the
+training summary; training then goes on with what there is, RGB only when there is nothing.
+"""
+
+from __future__ import annotations
+
+import io
+import json
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from lift3d.data.scene import Scene
+from lift3d.data.stereo import DenseDepth, SparsePoints, read_sparse_points, write_sparse_points_files
+from lift3d.errors import InputError
+from lift3d.model.config import ImageDepthConfig
+from lift3d.utils.atomic import write_bytes_atomic
+
+#: Fewer usable observations than this per training frame (median) is reported as a warning.
+MIN_OBSERVATIONS_PER_FRAME = 10
+#: The cache of a run folder: triangulated points and plane-sweep maps computed at training start.
+CACHE_DIR = "image_depth"
+SOURCES = ("auto", "sparse", "dense", "none")
+
+
+@dataclass
+class DepthTargets:
+    """Per-pixel depth targets of the training frames (one row per target).
+
+    Attributes
+    ----------
+    frame : np.ndarray
+        ``int64 [T]`` scene frame index.
+    u, v : np.ndarray
+        ``float32 [T]`` pixel coordinates in :class:`~lift3d.render.rays.RayGenerator`'s convention (the
+        centre of pixel column ``c`` is ``u = c``); a sparse point's ray goes exactly through its keypoint.
+    z, sigma : np.ndarray
+        ``float32 [T]`` z-depth (along the optical axis) and its standard deviation, world units.
+    dense : np.ndarray
+        ``bool [T]`` the target comes from a plane-sweep depth map (else from a sparse point).
+    info : dict
+        What config.yml and the summary record: ``source``, ``points``, ``observations``,
+        ``median_error_px``, ``dense_coverage``, ``targets``, ``frames_with_targets``, ``seconds``,
+        ``warnings``.
+    """
+
+    frame: np.ndarray
+    u: np.ndarray
+    v: np.ndarray
+    z: np.ndarray
+    sigma: np.ndarray
+    dense: np.ndarray
+    info: dict[str, Any] = field(default_factory=dict)
+
+    def __len__(self) -> int:
+        return len(self.frame)
+
+    @classmethod
+    def empty(cls, info: dict[str, Any] | None = None) -> "DepthTargets":
+        f = np.zeros(0, np.float32)
+        return cls(np.zeros(0, np.int64), f, f, f, f, np.zeros(0, bool), dict(info or {}))
+
+
+def frames_without_depth(scene: Scene, frames: np.ndarray) -> np.ndarray:
+    """The frames of ``frames`` that have no depth map of their own (``depth_file_path``)."""
+    return np.asarray([int(i) for i in frames if scene.frames[int(i)].depth_path is None], np.int64)
+
+
+def resolve_source(source: str) -> str:
+    """``auto`` → the source measured best by default (docs/sfm.md, "Training with it")."""
+    if source not in SOURCES:
+        raise InputError("--image_depth.source", f"unknown source {source!r} ({', '.join(SOURCES)})")
+    return "sparse" if source == "auto" else source
+
+
+def image_depth_targets(scene: Scene, frames: np.ndarray, cfg: ImageDepthConfig, cache: Path | None = None,
+                        progress: bool = False) -> DepthTargets:
+    """Depth targets for the frames of ``frames`` that have no depth map.
+
+    Parameters
+    ----------
+    scene : Scene
+    frames : np.ndarray
+        The training frames (held-out views never contribute: triangulation uses these frames only).
+    cfg : ImageDepthConfig
+    cache : Path, optional
+        Folder (the run's ``image_depth/``) where points and maps computed here are kept and read back.
+    progress : bool
+
+    Returns
+    -------
+    DepthTargets
+        Possibly empty (source ``none``, every frame has a depth map, nothing could be triangulated).
+    """
+    source = resolve_source(cfg.source)
+    targets_for = frames_without_depth(scene, frames)
+    info: dict[str, Any] = {"source": source, "requested": cfg.source, "warnings": []}
+    if source == "none" or len(targets_for) == 0:
+        if source != "none":
+            info["source"] = "none (every training frame has a depth map)"
+        return DepthTargets.empty(info)
+    t0 = time.perf_counter()
+    sparse, origin = _sparse_points(scene, frames, cache, progress)
+    info["points_from"] = origin
+    info["points"] = int(len(sparse))
+    info["median_error_px"] = round(sparse.median_error, 3) if len(sparse) else None
+    info["warnings"] += list(sparse.info.get("warnings", [])) if origin == "triangulated" else []
+    parts = [_sparse_rows(scene, sparse, targets_for)]
+    info["observations"] = int(len(parts[0][0]))
+    if source == "dense":
+        dense, dense_origin = _dense_maps(scene, frames, sparse, cache, progress)
+        info["dense_from"] = dense_origin
+        rows = _dense_rows(scene, dense, targets_for)
+        info["dense_coverage"] = round(float(len(rows[0])) / max(1, _pixels(scene, targets_for)), 4)
+        parts.append(rows)
+    frame, u, v, z, sigma, dense_flag = (np.concatenate(a) for a in zip(*parts))
+    finite = np.isfinite(z) & np.isfinite(sigma) & (z > 0) & (sigma > 0)
+    targets = DepthTargets(frame[finite], u[finite], v[finite], z[finite], sigma[finite], dense_flag[finite], info)
+    counts = np.bincount(np.searchsorted(targets_for, targets.frame), minlength=len(targets_for))
+    info["targets"] = int(len(targets))
+    info["frames_with_targets"] = int((counts > 0).sum())
+    info["frames_without_depth"] = int(len(targets_for))
+    info["seconds"] = round(time.perf_counter() - t0, 2)
+    if np.median(counts) < MIN_OBSERVATIONS_PER_FRAME:
+        info["warnings"].append(
+            f"only {int(np.median(counts))} depth targets per training frame (median): too little texture, overlap "
+            "or baseline for depth from the images; training relies on the colours" +
+            (" alone" if len(targets) == 0 else " mostly"))
+    return targets
+
+
+# ------------------------------------------------------------------------------------------ sparse points
+def _sparse_points(scene: Scene, frames: np.ndarray, cache: Path | None, progress: bool) -> tuple[SparsePoints, str]:
+    """The scene's sparse points, else the cached ones, else triangulated now (and cached)."""
+    own = scene.sparse_points()
+    if own is not None:
+        return own, f"scene ({_scene_points_source(scene)})"
+    names = [f.name for f in scene.frames]
+    if cache is not None and (cache / "sparse" / "points3D.ply").is_file():
+        return read_sparse_points(cache / "sparse" / "points3D.ply", cache / "sparse" / "observations.npz",
+                                  frame_names=names), "triangulated (cached)"
+    # here, not at module level: OpenCV's feature code loads only when a run triangulates
+    from lift3d.sfm import triangulate_scene
+
+    sparse = triangulate_scene(scene, frames, progress=progress)
+    if cache is not None:
+        write_sparse_points_files(cache, sparse)
+    # Observations index the triangulated frames; re-index them by scene frame.
+    sparse.obs_frame = np.asarray(frames, np.int64)[sparse.obs_frame].astype(np.int32)
+    sparse.frame_names = names
+    return sparse, "triangulated"
+
+
+def _scene_points_source(scene: Scene) -> str:
+    try:
+        meta = json.loads((scene.root / "transforms.json").read_text(encoding="utf-8"))
+        return str(meta.get("sparse_points", {}).get("source", "sparse_points"))
+    except (OSError, ValueError):
+        return "sparse_points"
+
+
+def _sparse_rows(scene: Scene, sparse: SparsePoints, targets_for: np.ndarray):
+    """Observations in the frames of ``targets_for``, inside their image."""
+    keep = np.isin(sparse.obs_frame, targets_for)
+    f = sparse.obs_frame[keep].astype(np.int64)
+    uv = sparse.obs_uv[keep].astype(np.float32)
+    w, h = scene.cameras.width[f], scene.cameras.height[f]
+    inside = (uv[:, 0] >= 0) & (uv[:, 1] >= 0) & (uv[:, 0] < w) & (uv[:, 1] < h)
+    f, uv = f[inside], uv[inside]
+    z, s = sparse.obs_depth[keep][inside], sparse.obs_sigma[keep][inside]
+    # observations.npz puts pixel (c, r)'s centre at (c + .5, r + .5); rays put it at (c, r).
+    return f, uv[:, 0] - 0.5, uv[:, 1] - 0.5, z.astype(np.float32), s.astype(np.float32), np.zeros(len(f), bool)
+
+
+# ------------------------------------------------------------------------------------------ dense maps
+def _dense_maps(scene: Scene, frames: np.ndarray, sparse: SparsePoints, cache: Path | None,
+                progress: bool) -> tuple[DenseDepth, str]:
+    names = [scene.frames[int(i)].name for i in frames]
+    if all(scene.frames[int(i)].mvs_depth_path is not None for i in frames):
+        maps = [scene.mvs_depth(int(i)) for i in frames]
+        return DenseDepth(names, [m[0] for m in maps], [m[1] for m in maps]), "scene (mvs_depth_file_path)"
+    path = None if cache is None else cache / "mvs.npz"
+    if path is not None and path.is_file():
+        with np.load(path, allow_pickle=False) as z:
+            if [str(n) for n in z["names"]] == names:
+                return DenseDepth(names, list(z["depth"]), list(z["sigma"])), "plane sweep (cached)"
+    # here, not at module level: the plane sweep's OpenCV code loads only when a run uses it
+    from lift3d.sfm import plane_sweep_scene
+
+    dense = plane_sweep_scene(scene, frames, sparse=sparse, progress=progress)
+    if path is not None:
+        buf = io.BytesIO()
+        np.savez_compressed(buf, names=np.asarray(names, dtype=str), depth=np.stack(dense.depth),
+                            sigma=np.stack(dense.sigma))
+        write_bytes_atomic(path, buf.getvalue())
+    return dense, "plane sweep"
+
+
+def _dense_rows(scene: Scene, dense: DenseDepth, targets_for: np.ndarray):
+    index = {f.name: k for k, f in enumerate(scene.frames)}
+    wanted = set(int(i) for i in targets_for)
+    out = []
+    for name, d, s in zip(dense.frame_names, dense.depth, dense.sigma):
+        i = index[name]
+        if i not in wanted:
+            continue
+        r, c = np.nonzero(np.asarray(d) > 0)
+        out.append((np.full(len(r), i, np.int64), c.astype(np.float32), r.astype(np.float32),
+                    np.asarray(d)[r, c].astype(np.float32), np.asarray(s)[r, c].astype(np.float32),
+                    np.ones(len(r), bool)))
+    if not out:
+        f = np.zeros(0, np.float32)
+        return np.zeros(0, np.int64), f, f, f, f, np.zeros(0, bool)
+    return tuple(np.concatenate(a) for a in zip(*out))
+
+
+def _pixels(scene: Scene, frames: np.ndarray) -> int:
+    return int(sum(int(scene.cameras.width[i]) * int(scene.cameras.height[i]) for i in frames))
