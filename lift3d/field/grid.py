@@ -63,9 +63,10 @@ class GridFieldConfig:
     understanding_cells_per_thing: float = 2.0
     """Cells of the derived finest understanding level across a small thing (the 10th percentile of the
     thing segments' sizes)."""
-    understanding_memory_mb: float = 24.0
+    understanding_memory_mb: float = 4.0
     """Parameter memory (MiB) the derived finest understanding level may take (Adam keeps three more
-    copies); caps its resolution."""
+    copies); caps its resolution (4 MiB: 64³ × 4 channels). Every million grid parameters costs training
+    time in the optimiser and the gradient buffers: see docs/presets.md."""
     head_hidden_dim: int = 256
     """Width of the semantic and instance decoders (paper: 256)."""
     head_layers: int = 2
