@@ -209,6 +209,9 @@ def test_a_finite_but_exploding_loss_is_detected_too(tiny_indoor, tmp_path):
     from lift3d.errors import TrainingDiverged
 
     overrides = _exploding(1e12)
+    # RGB only: with L_depth's charge on light passing the measured surface the collapsed field's loss
+    # overflows at this lr (the non-finite check, tested above) instead of staying finite.
+    overrides.setdefault("losses", {}).update(depth=0.0)
     with pytest.raises(TrainingDiverged, match="above 1000 x its first value"):
         train(tiny_indoor, preset="fast", output_dir=tmp_path, overrides=overrides, progress=False,
               print_summary=False)
