@@ -151,6 +151,22 @@ def test_depth_loss_hand_case_ignores_unknown_depth():
     # ray 0: |1.5 - 2| + 0.5 (the weight at t = 1 is off the surface); ray 1: 0 + 0
     assert abs(float(depth_loss(w, t, d, margin=0.1)) - (0.5 + 0.5) / 2) < 1e-7
     assert float(depth_loss(w, t, torch.zeros(3), margin=0.1)) == 0.0
+    # a per-ray margin: ray 0's band now takes in t = 1
+    assert abs(float(depth_loss(w, t, d, margin=torch.tensor([1.5, 0.1, 0.1]))) - 0.5 / 2) < 1e-7
+
+
+def test_depth_loss_charges_a_ray_that_does_not_end_at_the_surface():
+    """A fog in front of the wall that leaves the ray half transparent pays for the fog and for the light
+    that falls through; density at the measured depth is the cheapest way to opacity."""
+    t = torch.tensor([[1.0, 2.0, 3.0]])
+    d = torch.tensor([3.0])
+    fog = torch.tensor([[0.3, 0.3, 0.0]], requires_grad=True)  # 0.6 in front, 0.4 falls through
+    loss = depth_loss(fog, t, d, margin=0.1)
+    assert abs(float(loss) - (abs(0.9 - 3.0) + 1.0)) < 1e-6
+    loss.backward()
+    # more weight at the wall lowers the loss, more weight in the fog does not
+    assert fog.grad[0, 2] < 0 and fog.grad[0, 0] >= fog.grad[0, 2] and fog.grad[0, 1] >= fog.grad[0, 2]
+    assert float(depth_loss(torch.tensor([[0.0, 0.0, 1.0]]), t, d, 0.1)) == 0.0
 
 
 def test_feature_loss_hand_case():

@@ -59,19 +59,22 @@ from lift3d.bench.tables import REPORT_SEEDS
 from lift3d.errors import InputError
 from lift3d.field import native
 from lift3d.model.config import load_config
+from lift3d.model.loss_terms import LossConfig
 from lift3d.synth import make_scene
 from lift3d.utils.atomic import write_json_atomic, write_text_atomic
 from lift3d.utils.device import available_cpus, default_threads
 from lift3d.utils.progress import progress_bar
 from lift3d.viz.bench import plot_noise_curves, plot_pareto, plot_scaling
 
+#: The paper's L_feat weight: the presets keep L_feat off (docs/presets.md), the ablation switches it on.
+PAPER_FEATURE_WEIGHT = LossConfig().feature
 #: Ablation variants of the paper's Table 6: name → overrides.
 ABLATION = {
     "base": {"field": {"kind": "mlp"}, "losses": {"segment": 0.0, "feature": 0.0}},
     "base+S": {"losses": {"segment": 0.0, "feature": 0.0}},
     "base+S+L_seg": {"losses": {"feature": 0.0}},
-    "base+S+L_feat": {"losses": {"segment": 0.0}},
-    "all": {},
+    "base+S+L_feat": {"losses": {"segment": 0.0, "feature": PAPER_FEATURE_WEIGHT}},
+    "all": {"losses": {"feature": PAPER_FEATURE_WEIGHT}},
 }
 #: Every ablation variant trains on RGB only, as the paper does (the synthetic scenes ship depth maps, which
 #: the presets would otherwise use).

@@ -25,7 +25,9 @@ Three sources of 3D points, all labelled by running the field's semantic and ins
 ``min_confidence`` → frame conversion → ``obb`` crop → statistical outlier removal (Open3D) → voxel
 down-sampling with majority-vote labels → instance ids (:func:`lift3d.export.instances.assign_instances`:
 connected components of one (class, channel), fragments under ``min_points`` relabelled to their
-surroundings or dropped when isolated, contiguous ids ordered by size then position).
+surroundings or dropped when isolated, contiguous ids ordered by size then position) → instance clean-up
+(:mod:`lift3d.export.cleanup`: fragments that one 2D segment covers in the training views merge, crumbs
+under ``crumb_points`` fold into their neighbour).
 
 Examples
 --------
@@ -50,6 +52,7 @@ import torch
 from lift3d.data.ply import write_labelled_ply
 from lift3d.data.scene import Scene
 from lift3d.errors import InputError
+from lift3d.export.cleanup import clean_instances
 from lift3d.export.instances import assign_instances, voxel_downsample_majority
 from lift3d.export.mesh import (
     CameraVisibility,
@@ -166,6 +169,7 @@ def extract_labelled_points(loaded: LoadedRun, scene: Scene, *, source: str = "s
                             frame: str = "world", density_threshold: float | None = None,
                             refine_surface: bool = True, min_confidence: float = 0.0, voxel_size: float = 0.0,
                             remove_outliers: bool = False, std_ratio: float = 2.0, obb=None, min_points: int = 0,
+                            merge_fragments: bool = True, crumb_points: int | None = None,
                             device=None, progress: bool = False) -> LabelledPoints:
     """A labelled point cloud of a trained run (see the module docstring for the sources and filters).
 
@@ -198,6 +202,13 @@ def extract_labelled_points(loaded: LoadedRun, scene: Scene, *, source: str = "s
         Keep only points inside this box (output frame).
     min_points : int
         Instance fragments with fewer points are relabelled to their surroundings (dropped when isolated).
+    merge_fragments : bool
+        Merge instances of one class that one 2D pseudo-label segment covers in the training views that see
+        both (:mod:`lift3d.export.cleanup`; default on).
+    crumb_points : int, optional
+        Instances with fewer points fold into their neighbour (or are dropped when isolated). Default: the
+        points of a patch one instance link radius on a side, from the cloud's point density (a piece the
+        field's grid cannot resolve as an object); 0 keeps every instance.
     device : str, optional
         Move the model to this device first (``cpu``, ``cuda``, ``auto``).
     progress : bool
@@ -270,14 +281,42 @@ def extract_labelled_points(loaded: LoadedRun, scene: Scene, *, source: str = "s
     timings["instances"] = time.perf_counter() - t
     thresholds["instance_link_radius"] = float(link)
     thresholds["min_points"] = int(min_points)
-    stats.update(points=int(k.sum()), instances=assignment.stats, seconds=timings,
+    xyz, rgb, confidence = xyz[k], rgb[k], confidence[k]
+    semantic, instance = assignment.semantic[k], assignment.instance[k]
+    t = time.perf_counter()
+    if crumb_points is None:
+        crumb_points = default_crumb_points(link, typical_spacing(xyz))
+    elif crumb_points < 0:
+        raise InputError("--crumb-points", f"must be >= 0, got {crumb_points}")
+    xyz_world = xyz if frame == "world" else to_frame(xyz, transform, "world")
+    semantic, instance, kept, cleanup = clean_instances(
+        xyz, xyz_world, semantic, instance, cameras=scene.cameras, frames=train_frames(scene),
+        segments_of=lambda f: scene.pseudo_labels(f).instance, link_radius=link, crumb_points=int(crumb_points),
+        merge=merge_fragments)
+    timings["instance_cleanup"] = time.perf_counter() - t
+    thresholds["instance_cleanup"] = cleanup
+    stats.update(points=int(kept.sum()), instances=assignment.stats, instance_cleanup=cleanup, seconds=timings,
                  total_seconds=time.perf_counter() - start)
     return LabelledPoints(
-        xyz=np.asarray(xyz[k], np.float32), rgb=np.asarray(rgb[k], np.uint8),
-        semantic=np.asarray(assignment.semantic[k], np.int32), instance=np.asarray(assignment.instance[k], np.int32),
-        confidence=np.asarray(confidence[k], np.float32), frame=frame, transform=transform, thresholds=thresholds,
+        xyz=np.asarray(xyz[kept], np.float32), rgb=np.asarray(rgb[kept], np.uint8),
+        semantic=np.asarray(semantic[kept], np.int32), instance=np.asarray(instance[kept], np.int32),
+        confidence=np.asarray(confidence[kept], np.float32), frame=frame, transform=transform, thresholds=thresholds,
         stats=stats,
     )
+
+
+def default_crumb_points(link_radius: float, spacing: float) -> int:
+    """Points on a patch ``link_radius`` on a side: uniform random points with median nearest-neighbour
+    distance ``spacing`` have density ``ln 2 / (π spacing²)`` per unit area.
+
+    Examples
+    --------
+    >>> default_crumb_points(0.1, 0.01)
+    22
+    """
+    if spacing <= 0:
+        return 0
+    return int(round(math.log(2) / math.pi * (link_radius / spacing) ** 2))
 
 
 def typical_spacing(xyz: np.ndarray, sample: int = 20000, seed: int = 0) -> float:

@@ -55,6 +55,18 @@ class GridFieldConfig:
     """Resolutions of the understanding grid (paper: a single 16³ level)."""
     understanding_channels: int = 1
     """Features per node of the understanding grid (paper: 1)."""
+    understanding_fine_resolution: int = 0
+    """A finer last level of the understanding grid, added after ``understanding_resolutions`` when finer
+    than them: 0 = from the sizes of the thing segments the labels show (``understanding_cells_per_thing``
+    cells across the small things, capped by ``understanding_memory_mb``); -1 = none (only the listed
+    levels, as the paper's single 16³ level)."""
+    understanding_cells_per_thing: float = 2.0
+    """Cells of the derived finest understanding level across a small thing (the 10th percentile of the
+    thing segments' sizes)."""
+    understanding_memory_mb: float = 4.0
+    """Parameter memory (MiB) the derived finest understanding level may take (Adam keeps three more
+    copies); caps its resolution (4 MiB: 64³ × 4 channels). Every million grid parameters costs training
+    time in the optimiser and the gradient buffers: see docs/presets.md."""
     head_hidden_dim: int = 256
     """Width of the semantic and instance decoders (paper: 256)."""
     head_layers: int = 2
@@ -75,6 +87,29 @@ class GridFieldConfig:
             return {}
         self.max_resolution, why = resolution_for(self.resolution_cap, self.min_resolution)
         return {"why_grid_resolution": why}
+
+    @property
+    def understanding_levels(self) -> tuple[int, ...]:
+        """The understanding grid's levels: the listed ones, then the finest when it is finer."""
+        levels = tuple(int(r) for r in self.understanding_resolutions)
+        if self.understanding_fine_resolution > max(levels, default=0):
+            levels += (int(self.understanding_fine_resolution),)
+        return levels
+
+    def derive_label_sizes(self, label_resolution_for: Callable[..., tuple[int, str]]) -> dict[str, str]:
+        """Fill ``understanding_fine_resolution`` from the labels when it is 0.
+
+        ``label_resolution_for(channels=, budget_mb=, cells_per_thing=, minimum=)`` is the resolution the
+        thing segments ask for and why (:func:`lift3d.train.scene_sizes.label_resolution`). Returns the
+        reason for config.yml.
+        """
+        if self.understanding_fine_resolution != 0:
+            return {}
+        res, why = label_resolution_for(channels=self.understanding_channels, budget_mb=self.understanding_memory_mb,
+                                        cells_per_thing=self.understanding_cells_per_thing,
+                                        minimum=max(self.understanding_resolutions, default=1))
+        self.understanding_fine_resolution = res
+        return {"why_label_resolution": why}
 
 
 class GridField(Field):
@@ -112,7 +147,7 @@ class GridField(Field):
         direct[: self.grid.out_dim : g.channels] = 1.0
         self.register_buffer("direct_columns", direct, persistent=False)
         self.color_mlp = make_mlp(cfg.geo_feat_dim + (cfg.sh_degree + 1) ** 2, g.color_hidden_dim, 3, g.color_layers)
-        self.understanding_grid = DenseGrid(tuple(g.understanding_resolutions), g.understanding_channels, init_std=0.1)
+        self.understanding_grid = DenseGrid(g.understanding_levels, g.understanding_channels, init_std=0.1)
         head_in = (
             self.understanding_grid.out_dim
             + positional_encoding_dim(3, g.head_position_frequencies, include_input=True)

@@ -33,6 +33,10 @@ class MLPFieldConfig:
         """Nothing the scene decides (no lattice)."""
         return {}
 
+    def derive_label_sizes(self, label_resolution_for: Callable[..., tuple[int, str]]) -> dict[str, str]:
+        """Nothing: the plain MLP has no understanding grid."""
+        return {}
+
 
 class MLPField(Field):
     """A plain NeRF MLP with semantic and instance branches (field kind ``mlp``).

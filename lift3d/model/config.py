@@ -50,8 +50,19 @@ class DataConfig:
     """Random rays per image and step (besides the patch)."""
     patch_size: int = 16
     """Side of the square patch per image and step (L_feat and L_seg use patches); 0 = no patches."""
-    instance_headroom: float = 2.0
-    """V = max(16, headroom × the most thing segments in one frame), rounded up to a multiple of 8."""
+    segments_per_image: int = 0
+    """Segment sampler for L_seg (Panoptic Lifting's): 2D segments drawn per image and step, each with
+    ``rays_per_segment`` rays inside it, besides the patch and the random rays. Every segment is equally
+    likely whatever its size (so small ones get rays), things ``thing_segment_weight`` times as likely.
+    0 = off: L_seg then only groups the random rays that happen to share a segment."""
+    rays_per_segment: int = 8
+    """Rays drawn inside each sampled segment (the L_seg group size)."""
+    thing_segment_weight: float = 2.0
+    """How much likelier the segment sampler draws a thing segment than a stuff segment."""
+    instance_headroom: float = 1.5
+    """V = headroom × the objects the labels show (per thing class, the most segments of that class one
+    frame holds, summed over the classes), at least the busiest frame's thing segments + 1, rounded up to a
+    multiple of 8 (lift3d.train.scene_sizes)."""
     max_instance_channels: int = 128
     """Upper bound on the derived number of instance channels V."""
 

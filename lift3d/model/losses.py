@@ -159,14 +159,24 @@ def distortion_loss_reference(weights: Tensor, s_edges: Tensor) -> Tensor:
 
 
 def depth_loss(weights: Tensor, t_mid: Tensor, target: Tensor, margin: float | Tensor) -> Tensor:
-    """L_depth = mean over rays with a measured depth ``d`` of ``|Σ_i w_i t_i − d| + Σ_{|t_i − d| > m} w_i``.
+    """L_depth = mean over rays with a measured depth ``d`` of ``|Σ_i w_i t_i − d| + (1 − Σ_{|t_i − d| ≤ m} w_i)``.
 
     The first term is the usual expected-depth L1 (as in depth-supervised NeRFs); the second, a
-    line-of-sight term in the spirit of Urban Radiance Fields, puts a price on any weight away from the
-    surface, so a fog whose mean happens to sit at ``d`` is not a solution.
+    line-of-sight term in the spirit of Urban Radiance Fields, asks the ray to *end* in the band around the
+    surface: it puts a price on any weight away from the surface (so a fog whose mean happens to sit at
+    ``d`` is not a solution) and on the transmittance left after the band. Without the latter a ray whose
+    weight sits in a fog in front of the wall (not yet opaque, the rest falling through to the background)
+    pays only for the fog's weight, and the colour loss, which wants the ray opaque, adds density wherever
+    the ray already has some - in front of the wall; with it, the cheapest way to opacity is density at ``d``.
 
     ``weights``, ``t_mid``: ``[R, S]``; ``target``: ``[R]`` distance along the ray (0 = unknown, ignored);
     ``margin``: a number, or ``[R]`` per ray (e.g. from each measurement's standard deviation).
+
+    Examples
+    --------
+    >>> w = torch.tensor([[0.5, 0.5, 0.0], [0.0, 0.6, 0.0]]); t = torch.tensor([[1.0, 2.0, 3.0]] * 2)
+    >>> round(float(depth_loss(w, t, torch.tensor([2.0, 2.0]), 0.1)), 4)  # (|1.5-2| + 0.5 + |1.2-2| + 0.4) / 2
+    1.1
     """
     known = target > 0
     if not bool(known.any()):
@@ -174,8 +184,8 @@ def depth_loss(weights: Tensor, t_mid: Tensor, target: Tensor, margin: float | T
     w, t, d = weights[known], t_mid[known], target[known][:, None]
     m = margin[known][:, None] if isinstance(margin, Tensor) else margin
     expected = (w * t).sum(-1)
-    stray = (w * ((t - d).abs() > m)).sum(-1)
-    return ((expected - d[:, 0]).abs() + stray).mean()
+    in_band = (w * ((t - d).abs() <= m)).sum(-1)
+    return ((expected - d[:, 0]).abs() + (1.0 - in_band)).mean()
 
 
 def ds_depth_loss(weights: Tensor, t_mid: Tensor, deltas: Tensor, target: Tensor, sigma: Tensor,

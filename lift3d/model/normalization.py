@@ -141,12 +141,17 @@ def infer_normalization(scene: Scene, margin: float = 1.05) -> tuple[SceneNormal
     return SceneNormalization(center, scale, bounded, aabb), why
 
 
+def typical_camera_distance(scene: Scene, norm: SceneNormalization) -> float:
+    """Typical distance from a camera to the foreground box centre (normalised units, at least 0.5): the
+    viewing distance scene sizes assume where no depth map says better."""
+    cams_n = norm.to_normalized(scene.cameras.centers)
+    return max(float(np.median(np.linalg.norm(cams_n, axis=1))), 0.5)
+
+
 def derive_grid_resolution(scene: Scene, norm: SceneNormalization, cap: int, minimum: int = 32) -> tuple[int, str]:
     """Finest grid resolution from scene extent and image size: about one voxel per pixel footprint at the
     typical viewing distance, rounded up to a multiple of 16 and capped."""
-    cams_n = norm.to_normalized(scene.cameras.centers)
-    # Typical distance from a camera to the foreground box centre (normalised units, at least 0.5).
-    dist = max(float(np.median(np.linalg.norm(cams_n, axis=1))), 0.5)
+    dist = typical_camera_distance(scene, norm)
     focal = float(np.median(scene.cameras.fx))
     footprint = dist / focal  # normalised units per pixel
     extent = 2.0 if norm.bounded else 4.0  # grid side in normalised (contracted) units

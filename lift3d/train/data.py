@@ -20,6 +20,7 @@ from lift3d.model.labels import LabelSpace
 from lift3d.model.loss_terms import RayBatch
 from lift3d.render.rays import RayGenerator
 from lift3d.train.image_depth import DepthTargets
+from lift3d.train.scene_sizes import ThingSegments
 from lift3d.utils.progress import progress_bar
 
 
@@ -67,6 +68,8 @@ class TrainingData:
         depth = np.zeros(n, np.float32) if with_depth else None
         mask = None
         self.max_instances_per_frame = 0
+        thing_parts = []
+        thing_categories = set(scene.thing_ids)
         for k, i in enumerate(progress_bar(self.frames, desc="load frames", disable=not progress)):
             a, b = self.offsets[k], self.offsets[k + 1]
             rgb[a:b] = scene.image(int(i)).reshape(-1, 3)
@@ -81,10 +84,13 @@ class TrainingData:
             _, sinv = np.unique(lab.segment.reshape(-1), return_inverse=True)
             seg[a:b] = np.where(lab.segment.reshape(-1) > 0, sinv + 1, 0)
             conf[a:b] = lab.confidence.reshape(-1)
-            if depth is not None:
-                d = scene.depth(int(i))
-                if d is not None:
-                    depth[a:b] = np.where(np.isfinite(d) & (d > 0), d, 0).reshape(-1) * depth_scale
+            d = scene.depth(int(i)) if scene.has_depth else None
+            if d is not None:
+                d = np.where(np.isfinite(d) & (d > 0), d, 0).reshape(-1)
+                if depth is not None:
+                    depth[a:b] = d * depth_scale
+            thing_parts.append(_thing_segments(k, compact, cats[a:b], d, thing_categories,
+                                               float(scene.cameras.fx[int(i)])))
             m = scene.mask(int(i))
             if m is not None:
                 if mask is None:
@@ -94,6 +100,8 @@ class TrainingData:
         self.labels = labels or LabelSpace(self.used_category_ids, [c for c in scene.thing_ids if c in self.used_category_ids])
         lut = self.labels.category_to_channel()
         cats = np.where(cats < len(lut), cats, 0)
+        self.thing_segments = ThingSegments.concatenate(thing_parts)
+        self.thing_segments.channel = lut[np.where(self.thing_segments.channel < len(lut), self.thing_segments.channel, 0)]
         dev = self.device
         self.rgb = torch.from_numpy(rgb).to(dev)
         self.semantic = torch.from_numpy(lut[cats].astype(np.int16)).to(dev)
@@ -106,6 +114,7 @@ class TrainingData:
         self.heights = torch.as_tensor(heights, device=dev)
         self.offsets_t = torch.as_tensor(self.offsets, device=dev)
         self._set_targets(targets, target_scale, target_sigma_scale, target_min_sigma)
+        self._index_segments(seg, lut[cats].astype(np.int64))
 
     def _set_targets(self, targets: DepthTargets | None, scale: float, sigma_scale: float, min_sigma: float) -> None:
         """Keep the targets sorted by training frame, in normalised units, with per-frame offsets."""
@@ -134,6 +143,27 @@ class TrainingData:
         counts = np.bincount(local, minlength=len(self))
         self.target_offsets = torch.as_tensor(np.concatenate([[0], np.cumsum(counts)]), dtype=torch.long, device=dev)
 
+    def _index_segments(self, seg: np.ndarray, channel: np.ndarray) -> None:
+        """Pixels grouped by (frame, 2D segment) for :meth:`sample`'s segment rays: ``seg_pixels`` holds the
+        labelled pixels sorted by group; group ``g`` is ``seg_pixels[seg_start[g] : seg_start[g] + seg_count[g]]``
+        of frame ``seg_frame[g]``; a frame's groups are contiguous from ``frame_first_segment``."""
+        n_frames = len(self.frames)
+        frame_of_pixel = np.repeat(np.arange(n_frames, dtype=np.int64), np.diff(self.offsets))
+        labelled = np.flatnonzero(seg > 0)
+        key = (frame_of_pixel[labelled] << 20) | seg[labelled].astype(np.int64)
+        order = np.argsort(key, kind="stable")
+        pixels = labelled[order]
+        keys, start, count = np.unique(key[order], return_index=True, return_counts=True)
+        frame = keys >> 20
+        # A 2D panoptic segment has one category: the channel of its first pixel is the segment's.
+        thing = self.labels.thing_channels()[channel[pixels[start]]] if len(start) else np.zeros(0, bool)
+        dev = self.device
+        self.seg_pixels = torch.as_tensor(pixels, device=dev)
+        self.seg_start = torch.as_tensor(start, device=dev)
+        self.seg_count = torch.as_tensor(count, device=dev)
+        self.seg_is_thing = torch.as_tensor(thing, device=dev)
+        self.frame_first_segment = torch.as_tensor(np.searchsorted(frame, np.arange(n_frames + 1)), device=dev)
+
     def __len__(self) -> int:
         return len(self.frames)
 
@@ -147,10 +177,17 @@ class TrainingData:
         return (counts / counts[1:].sum().clamp_min(1)).cpu().numpy()
 
     def sample(self, images_per_batch: int, rays_per_image: int, patch_size: int,
-               generator: torch.Generator, target_rays_per_image: int = 0) -> RayBatch:
+               generator: torch.Generator, target_rays_per_image: int = 0, segments_per_image: int = 0,
+               rays_per_segment: int = 0, thing_segment_weight: float = 1.0) -> RayBatch:
         """Draw ``images_per_batch`` frames; from each a ``patch_size²`` patch, ``rays_per_image`` random
-        pixels (masked pixels are dropped) and ``target_rays_per_image`` rays through its depth targets from
-        the images (drawn with replacement; none from a frame without targets). Those come last."""
+        pixels, ``segments_per_image × rays_per_segment`` segment rays (masked pixels other than the
+        patch's are dropped) and ``target_rays_per_image`` rays through its depth targets from the images
+        (drawn with replacement; none from a frame without targets). Those come last.
+
+        Segment rays are Panoptic Lifting's segment sampler: ``segments_per_image`` 2D segments of the frame
+        are drawn (with replacement), every segment equally likely whatever its size so that small ones get
+        rays too, thing segments ``thing_segment_weight`` times as likely; then ``rays_per_segment`` pixels
+        uniformly inside each. L_seg then always has groups of at least ``rays_per_segment`` rays."""
         dev = self.device
         k = min(images_per_batch, len(self))
         # Draws come from the generator's device (the training device) and stay there.
@@ -173,6 +210,12 @@ class TrainingData:
             parts_u.append((pix % w[:, None]).reshape(-1))
             parts_v.append((pix // w[:, None]).reshape(-1))
             parts_f.append(local[:, None].expand(k, rays_per_image).reshape(-1))
+        if segments_per_image > 0 and rays_per_segment > 0 and len(self.seg_start):
+            su, sv, sf = self._segment_rays(local, segments_per_image, rays_per_segment, thing_segment_weight,
+                                            generator)
+            parts_u.append(su)
+            parts_v.append(sv)
+            parts_f.append(sf)
         u, v, f = torch.cat(parts_u), torch.cat(parts_v), torch.cat(parts_f)
         flat = self.offsets_t[f] + v * self.widths[f] + u
         n_patch = k * ps * ps
@@ -217,3 +260,52 @@ class TrainingData:
             depth_sigma=sigma,
             cos=cos_axis,
         )
+
+    def _segment_rays(self, local: torch.Tensor, k_segments: int, m_rays: int, thing_weight: float,
+                      generator: torch.Generator) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """Pixel columns, rows and frame slots of the segment rays of frames ``local`` (see :meth:`sample`);
+        frames without a labelled pixel get none."""
+        dev = self.device
+        first = self.frame_first_segment[local]
+        n_seg = self.frame_first_segment[local + 1] - first  # [k]
+        has = n_seg > 0
+        local, first, n_seg = local[has], first[has], n_seg[has]
+        if len(local) == 0:
+            empty = torch.zeros(0, dtype=torch.long, device=dev)
+            return empty, empty, empty
+        width = int(n_seg.max())
+        slot = torch.arange(width, device=dev)
+        group = (first[:, None] + slot[None, :]).clamp(max=len(self.seg_start) - 1)
+        weight = torch.where(self.seg_is_thing[group], float(thing_weight), 1.0) * (slot[None, :] < n_seg[:, None])
+        # torch.multinomial takes the CPU generator; draw there and move (a few dozen numbers per step).
+        pick = torch.multinomial(weight.float().cpu(), k_segments, replacement=True, generator=generator).to(dev)
+        chosen = group.gather(1, pick).reshape(-1)  # [k * K]
+        r = torch.rand(len(chosen), m_rays, generator=generator).to(dev)
+        within = (r * self.seg_count[chosen][:, None].float()).long().clamp_max(self.seg_count[chosen][:, None] - 1)
+        flat = self.seg_pixels[self.seg_start[chosen][:, None] + within].reshape(-1)
+        f = local.repeat_interleave(k_segments * m_rays)
+        rel = flat - self.offsets_t[f]
+        w = self.widths[f]
+        return rel % w, rel // w, f
+
+
+def _thing_segments(slot: int, instance: np.ndarray, category: np.ndarray, depth: np.ndarray | None,
+                    thing_categories: set[int], focal: float) -> ThingSegments:
+    """The thing segments of one frame (flattened per-pixel compact instance ids, category ids and depth in
+    world units, 0 = unknown) as :class:`ThingSegments` rows; ``channel`` holds the *category* until the
+    label space is known."""
+    ids, first, counts = np.unique(instance, return_index=True, return_counts=True)
+    keep = (ids > 0) & np.isin(category[first], list(thing_categories))
+    ids, first, counts = ids[keep], first[keep], counts[keep]
+    med = np.zeros(len(ids))
+    if depth is not None and len(ids):
+        order = np.argsort(instance, kind="stable")
+        starts = np.searchsorted(instance[order], ids)
+        for j, (s, n) in enumerate(zip(starts, counts)):
+            d = depth[order[s:s + n]]
+            d = d[d > 0]
+            med[j] = float(np.median(d)) if len(d) else 0.0
+    n = len(ids)
+    return ThingSegments(frame=np.full(n, slot, np.int64), channel=category[first].astype(np.int64),
+                         pixels=counts.astype(np.int64), depth=med, focal=np.full(n, focal),
+                         image_pixels=np.full(n, len(instance), np.int64))

@@ -9,7 +9,6 @@ Typical use::
 
 from __future__ import annotations
 
-import math
 import os
 import random
 import time
@@ -30,7 +29,8 @@ from lift3d.eval.metrics import psnr
 from lift3d.field import grids
 from lift3d.model.config import Config, config_from_dict, load_config, load_yaml, save_config, update_dataclass
 from lift3d.model.labels import LabelSpace
-from lift3d.model.normalization import SceneNormalization, derive_grid_resolution, infer_normalization
+from lift3d.model.normalization import (SceneNormalization, derive_grid_resolution, infer_normalization,
+                                        typical_camera_distance)
 from lift3d.model.panoptic import PanopticModel, count_parameters
 from lift3d.model.perceptual import build_perceptual_prior
 from lift3d.model.run import LoadedRun
@@ -42,6 +42,7 @@ from lift3d.train.image_depth import CACHE_DIR as IMAGE_DEPTH_CACHE
 from lift3d.train.image_depth import image_depth_targets
 from lift3d.train.distributed import DistContext, all_ranks_agree, broadcast_object, init_distributed, shutdown
 from lift3d.train.observed import observed_cells
+from lift3d.train.scene_sizes import instance_capacity, label_resolution
 from lift3d.utils.device import available_cpus, resolve_device, set_threads
 from lift3d.utils.threads import threads_from_environment
 from lift3d.utils.memory import peak_rss_mb
@@ -69,9 +70,11 @@ def resolve_config(scene: Scene, preset: str, overrides: dict | None) -> tuple[C
     return cfg, norm
 
 
-def resolve_label_sizes(cfg: Config, data: TrainingData) -> None:
-    """U from the categories the labels use (plus void); V from the pseudo-labels with headroom; no
-    instance head without thing classes."""
+def resolve_label_sizes(cfg: Config, data: TrainingData, norm: SceneNormalization | None = None,
+                        scene: Scene | None = None) -> None:
+    """U from the categories the labels use (plus void); V from the objects the labels show, with headroom;
+    no instance head without thing classes; the understanding grid's finest level from the thing sizes
+    (:mod:`lift3d.train.scene_sizes`). Derived values and their reasons go to ``cfg.scene`` (config.yml)."""
     labels = data.labels
     if labels.num_channels < 2:
         raise InputError(cfg.scene.get("data", "--data"),
@@ -82,19 +85,29 @@ def resolve_label_sizes(cfg: Config, data: TrainingData) -> None:
         raise InputError("--field.num-semantic-classes",
                          f"the labels use {labels.num_channels - 1} categories (+ void = {labels.num_channels}); "
                          f"U={cfg.field.num_semantic_classes} is too few")
+    notes: dict[str, Any] = {}
     if not labels.thing_ids:
         cfg.field.num_instance_channels = 0
-        why_v = "no thing classes in the labels: no instance head"
+        notes["why_instance_channels"] = "no thing classes in the labels: no instance head"
     elif cfg.field.num_instance_channels <= 0:
-        want = max(16, cfg.data.instance_headroom * data.max_instances_per_frame)
-        v = int(min(cfg.data.max_instance_channels, math.ceil(want / 8) * 8))
+        v, why, numbers = instance_capacity(data.thing_segments, len(data), cfg.data.instance_headroom,
+                                            cfg.data.max_instance_channels)
         cfg.field.num_instance_channels = v
-        why_v = f"{cfg.data.instance_headroom} x {data.max_instances_per_frame} thing segments in the busiest frame"
-    else:
-        why_v = "set by the user"
-    cfg.scene.update(labels=labels.to_dict(), why_instance_channels=why_v,
-                     max_instances_per_frame=int(data.max_instances_per_frame),
-                     depth_supervision=data.depth is not None, inputs=input_kind(cfg, data))
+        notes.update(why_instance_channels=why, instance_estimate=numbers)
+    elif "why_instance_channels" not in cfg.scene:  # (a resumed run keeps the reason it was given)
+        notes["why_instance_channels"] = "set by the user"
+    if norm is not None and scene is not None:
+        fallback = typical_camera_distance(scene, norm) / norm.scale
+        extent = 2.0 if norm.bounded else 4.0
+
+        def label_resolution_for(**kw) -> tuple[int, str]:
+            res, why, _ = label_resolution(data.thing_segments, scale=norm.scale, fallback_depth=fallback,
+                                           extent=extent, **kw)
+            return res, why
+
+        notes.update(cfg.field.kind_config.derive_label_sizes(label_resolution_for))
+    cfg.scene.update(labels=labels.to_dict(), max_instances_per_frame=int(data.max_instances_per_frame),
+                     depth_supervision=data.depth is not None, inputs=input_kind(cfg, data), **notes)
 
 
 def input_kind(cfg: Config, data: TrainingData) -> str:
@@ -153,7 +166,7 @@ class Trainer:
                                  depth_scale=norm.scale if cfg.losses.depth > 0 else None, targets=targets,
                                  target_scale=norm.scale, target_sigma_scale=cfg.image_depth.sigma_scale,
                                  target_min_sigma=cfg.image_depth.min_sigma)
-        resolve_label_sizes(cfg, self.data)
+        resolve_label_sizes(cfg, self.data, norm, scene)
         self.model = PanopticModel(cfg, self.data.labels).to(device)
         if cfg.field.observed_resolution > 0:  # (a resumed run loads its own lattice with the checkpoint)
             cams = replace(scene.cameras, c2w=norm.c2w_normalized(scene.cameras.c2w))
@@ -273,7 +286,9 @@ class Trainer:
         # record_function labels name the phases in `lift3d bench`'s profile (no cost without a profiler).
         with record_function("step.sample_batch"):
             batch = self.data.sample(self.images_per_rank, d.rays_per_image, d.patch_size, self.generator,
-                                     target_rays_per_image=self.cfg.image_depth.rays_per_image)
+                                     target_rays_per_image=self.cfg.image_depth.rays_per_image,
+                                     segments_per_image=d.segments_per_image, rays_per_segment=d.rays_per_segment,
+                                     thing_segment_weight=d.thing_segment_weight)
         factor = _lr_factor(self.step, self.cfg, self.elapsed())
         for group in self.optimizer.param_groups:
             group["lr"] = group["base_lr"] * factor

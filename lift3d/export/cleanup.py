@@ -1,0 +1,242 @@
+"""3D instance clean-up of an exported point cloud: one instance per object, no crumbs.
+
+:func:`lift3d.export.instances.assign_instances` makes one instance per spatially connected (class, instance
+channel) group. A trained field often splits one object over two channels (or a channel over two pieces),
+and leaves specks of a channel inside another object; a robot map wants one record per object. Two steps
+fix that, using the views the field was trained from:
+
+1. **Fragments merge.** In every training view (up to ``max_views``, evenly spread) the thing points are
+   projected with a z-buffer of all exported points (a point is visible when it is not behind the nearest
+   point within one pixel by more than ``depth_tolerance``), and each instance's visible points vote for
+   the 2D pseudo-label segment they land on. Two instances of the same class are fragments of one object
+   when, in the views that see both (at least ``min_views``), the same 2D segment holds the majority of each
+   in at least ``min_share`` of those views. A 2D segmenter that merges two touching objects does so in some
+   frames, not in most, so neighbours of one class stay apart. Groups are joined transitively.
+2. **Crumbs fold.** An instance with fewer than ``min_points`` points takes the majority (class, instance) of
+   the points around it (within ``4 × link_radius``, outside crumbs) and disappears into it; with no such
+   point it is dropped.
+
+Counts before and after each step go to the export's ``metadata.json`` (``thresholds.points.instances``).
+
+Examples
+--------
+Two fragments (instances 1 and 2) that one 2D segment covers in both views merge; instance 3 keeps its id:
+
+>>> votes = np.array([[0, 1, 7, 10, 10], [0, 2, 7, 8, 9], [0, 3, 5, 6, 6],
+...                   [1, 1, 4, 9, 9], [1, 2, 4, 7, 7], [1, 3, 2, 5, 5]])
+>>> merged, n = merge_fragments(np.array([1, 2, 3, 2]), np.array([0, 9, 9, 9]), votes, min_views=2)
+>>> merged.tolist(), n
+([1, 1, 3, 1], 1)
+"""
+
+from __future__ import annotations
+
+from typing import Any, Callable
+
+import numpy as np
+
+
+def segment_votes(xyz_world: np.ndarray, instance: np.ndarray, cameras, frames: np.ndarray,
+                  segments_of: Callable[[int], np.ndarray], *, max_views: int = 24, min_points: int = 5,
+                  depth_tolerance: float = 0.03) -> np.ndarray:
+    """What 2D segment each instance's visible points land on, view by view.
+
+    Parameters
+    ----------
+    xyz_world : np.ndarray
+        ``[N, 3]`` every exported point (stuff too: it occludes), in the cameras' world frame.
+    instance : np.ndarray
+        ``[N]`` instance id (0 = stuff).
+    cameras : lift3d.data.cameras.Cameras
+        World-frame cameras (``project``).
+    frames : np.ndarray
+        Frames to use (training frames); at most ``max_views`` of them, evenly spread, are used.
+    segments_of : callable
+        ``frame -> [H, W]`` int 2D thing-segment ids of that frame's pseudo-labels (0 = none).
+    min_points : int
+        An instance needs this many visible points in a view to vote there.
+    depth_tolerance : float
+        Relative depth margin of the visibility test.
+
+    Returns
+    -------
+    np.ndarray
+        ``[K, 5]`` int64 rows ``(frame, instance, segment, points in segment, visible points of the instance)``.
+    """
+    from scipy.ndimage import minimum_filter
+
+    frames = np.asarray(frames, np.int64)
+    if len(frames) > max_views:
+        frames = frames[np.linspace(0, len(frames) - 1, max_views).round().astype(np.int64)]
+    xyz_world = np.asarray(xyz_world, np.float64)
+    instance = np.asarray(instance, np.int64)
+    n_inst = int(instance.max(initial=0)) + 1
+    rows = []
+    for f in frames:
+        f = int(f)
+        uv, z = cameras.project(f, xyz_world)
+        w, h = int(cameras.width[f]), int(cameras.height[f])
+        with np.errstate(invalid="ignore"):
+            ok = (z > 0) & (uv[:, 0] >= 0) & (uv[:, 0] < w) & (uv[:, 1] >= 0) & (uv[:, 1] < h)
+        idx = np.flatnonzero(ok)
+        if len(idx) == 0:
+            continue
+        pix = uv[idx, 1].astype(np.int64) * w + uv[idx, 0].astype(np.int64)
+        zbuf = np.full(w * h, np.inf)
+        np.minimum.at(zbuf, pix, z[idx])
+        # The nearest point within one pixel: points are sparser than pixels in places, and a hole in the
+        # z-buffer would let the surface behind show through.
+        zbuf = minimum_filter(zbuf.reshape(h, w), size=3).reshape(-1)
+        visible = z[idx] <= zbuf[pix] * (1.0 + depth_tolerance)
+        thing = instance[idx] > 0
+        idx, pix = idx[visible & thing], pix[visible & thing]
+        if len(idx) == 0:
+            continue
+        inst = instance[idx]
+        total = np.bincount(inst, minlength=n_inst)
+        seg = np.asarray(segments_of(f)).reshape(-1)[pix].astype(np.int64)
+        pairs, counts = np.unique(np.stack([inst, seg], 1), axis=0, return_counts=True)
+        use = (pairs[:, 1] > 0) & (total[pairs[:, 0]] >= min_points)
+        for (a, s), c in zip(pairs[use], counts[use]):
+            rows.append((f, a, s, c, total[a]))
+    return np.asarray(rows, np.int64).reshape(-1, 5)
+
+
+def merge_fragments(instance: np.ndarray, instance_class: np.ndarray, votes: np.ndarray, *,
+                    min_share: float = 0.5, min_views: int = 2) -> tuple[np.ndarray, int]:
+    """Join instances of one class that one 2D segment covers in the views that see both.
+
+    Parameters
+    ----------
+    instance : np.ndarray
+        ``[N]`` instance ids (0 = stuff).
+    instance_class : np.ndarray
+        ``[max id + 1]`` class of each instance id.
+    votes : np.ndarray
+        :func:`segment_votes` rows.
+    min_share, min_views : float, int
+        See the module docstring.
+
+    Returns
+    -------
+    merged : np.ndarray
+        ``[N]`` ids: every joined group takes its smallest id.
+    merges : int
+        How many instances disappeared into another.
+    """
+    instance = np.asarray(instance, np.int64)
+    n_inst = int(instance.max(initial=0)) + 1
+    parent = np.arange(n_inst)
+
+    def root(a: int) -> int:
+        while parent[a] != a:
+            parent[a] = parent[parent[a]]
+            a = parent[a]
+        return a
+
+    # The segment holding the majority of an instance's visible points in a view (if one does).
+    major = votes[2 * votes[:, 3] > votes[:, 4]] if len(votes) else votes
+    co: dict[tuple[int, int], int] = {}
+    same: dict[tuple[int, int], int] = {}
+    for f in np.unique(major[:, 0]) if len(major) else []:
+        rows = major[major[:, 0] == f]
+        for x in range(len(rows)):
+            for y in range(x + 1, len(rows)):
+                a, b = int(rows[x, 1]), int(rows[y, 1])
+                if instance_class[a] != instance_class[b]:
+                    continue
+                key = (min(a, b), max(a, b))
+                co[key] = co.get(key, 0) + 1
+                same[key] = same.get(key, 0) + int(rows[x, 2] == rows[y, 2])
+    merges = 0
+    for (a, b), n in sorted(co.items()):
+        if n >= min_views and same[(a, b)] >= min_share * n:
+            ra, rb = root(a), root(b)
+            if ra != rb:
+                parent[max(ra, rb)] = min(ra, rb)
+                merges += 1
+    roots = np.array([root(a) for a in range(n_inst)], np.int64)
+    return roots[instance], merges
+
+
+def instance_classes(semantic: np.ndarray, instance: np.ndarray) -> np.ndarray:
+    """``[max id + 1]`` majority class of every instance id (0 for ids without points)."""
+    instance = np.asarray(instance, np.int64)
+    out = np.zeros(int(instance.max(initial=0)) + 1, np.int64)
+    sel = instance > 0
+    if sel.any():
+        pairs, counts = np.unique(np.stack([instance[sel], np.asarray(semantic, np.int64)[sel]], 1), axis=0,
+                                  return_counts=True)
+        order = np.lexsort((-counts, pairs[:, 0]))
+        first = order[np.r_[True, np.diff(pairs[order, 0]) != 0]]
+        out[pairs[first, 0]] = pairs[first, 1]
+    return out
+
+
+def count_instances(instance: np.ndarray) -> int:
+    """Number of distinct instances (ids > 0)."""
+    instance = np.asarray(instance)
+    return int(len(np.unique(instance[instance > 0])))
+
+
+def clean_instances(xyz: np.ndarray, xyz_world: np.ndarray, semantic: np.ndarray, instance: np.ndarray, *,
+                    cameras, frames: np.ndarray, segments_of: Callable[[int], np.ndarray], link_radius: float,
+                    crumb_points: int, merge: bool = True, max_views: int = 24, min_share: float = 0.5,
+                    min_views: int = 2) -> tuple[np.ndarray, np.ndarray, np.ndarray, dict[str, Any]]:
+    """Merge fragments, then fold crumbs (see the module docstring).
+
+    Parameters
+    ----------
+    xyz : np.ndarray
+        ``[N, 3]`` points in the export frame (``link_radius`` is in its units).
+    xyz_world : np.ndarray
+        The same points in the cameras' world frame.
+    semantic, instance : np.ndarray
+        ``[N]`` class and instance ids (:func:`lift3d.export.instances.assign_instances`).
+    cameras, frames, segments_of
+        Views and their 2D thing segments (:func:`segment_votes`).
+    link_radius : float
+        The instance link radius; crumbs look for their neighbour within 4 × this.
+    crumb_points : int
+        Instances with fewer points are crumbs (0 = keep every instance).
+    merge : bool
+        Merge fragments (step 1); off, only crumbs are folded.
+
+    Returns
+    -------
+    semantic, instance, keep, stats
+        Instance ids contiguous ``1..K`` by size as :func:`~lift3d.export.instances.assign_instances` gives
+        them; ``keep`` False for dropped crumbs; ``stats`` the counts for ``metadata.json``.
+    """
+    from lift3d.export.instances import _contiguous_ids, _relabel_fragments
+
+    semantic = np.asarray(semantic, np.int32).copy()
+    instance = np.asarray(instance, np.int64)
+    stats: dict[str, Any] = {"instances_before": count_instances(instance), "fragments_merged": 0,
+                             "merge": {"views": int(min(max_views, len(frames))), "min_share": float(min_share),
+                                       "min_views": int(min_views)} if merge else "off",
+                             "crumb_points": int(crumb_points)}
+    if merge and stats["instances_before"] > 1:
+        votes = segment_votes(xyz_world, instance, cameras, frames, segments_of, max_views=max_views)
+        instance, stats["fragments_merged"] = merge_fragments(instance, instance_classes(semantic, instance), votes,
+                                                              min_share=min_share, min_views=min_views)
+    stats["after_merge"] = count_instances(instance)
+    keep = np.ones(len(instance), bool)
+    # Components in the sense of _relabel_fragments: instance id - 1 on things, -1 on stuff.
+    component = np.where(instance > 0, instance - 1, -1)
+    crumb_stats = {"fragments_relabelled": 0, "fragment_points_relabelled": 0, "fragments_dropped": 0,
+                   "fragment_points_dropped": 0}
+    if crumb_points > 0 and (component >= 0).any():
+        sizes = np.bincount(component[component >= 0])
+        in_crumb = np.zeros(len(component), bool)
+        in_crumb[component >= 0] = sizes[component[component >= 0]] < crumb_points
+        if in_crumb.any():
+            _relabel_fragments(np.asarray(xyz, np.float64), semantic, component, in_crumb, keep, 4.0 * link_radius,
+                               crumb_stats)
+    stats.update(crumbs_folded=crumb_stats["fragments_relabelled"], crumbs_dropped=crumb_stats["fragments_dropped"],
+                 crumb_points_moved=crumb_stats["fragment_points_relabelled"],
+                 crumb_points_dropped=crumb_stats["fragment_points_dropped"])
+    new = _contiguous_ids(np.asarray(xyz, np.float64), component, keep)
+    new[component < 0] = 0
+    stats["instances_after"] = count_instances(new[keep])
+    return semantic, new.astype(np.int32), keep, stats

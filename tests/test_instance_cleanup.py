@@ -1,0 +1,100 @@
+"""3D instance clean-up of exports (lift3d.export.cleanup): fragments of one object merge, neighbours stay
+apart, crumbs fold into their neighbour."""
+
+import numpy as np
+
+from lift3d.data.cameras import Cameras, look_at
+from lift3d.export.cleanup import clean_instances, merge_fragments, segment_votes
+
+W = H = 64
+
+
+def _plate(x0, x1, n, rng, y=0.0):
+    """Points on a vertical plate (x in [x0, x1], z in [0, 1]) facing the cameras at y < 0."""
+    return np.c_[rng.uniform(x0, x1, n), np.full(n, y), rng.uniform(0, 1, n)]
+
+
+def _views():
+    eyes = [np.array([x, -4.0, 0.5]) for x in (-0.4, 0.0, 0.4)]
+    c2w = np.stack([look_at(e, np.array([e[0], 0.0, 0.5])) for e in eyes])
+    return Cameras(c2w, 60.0, 60.0, W / 2, H / 2, W, H)
+
+
+def _segment_maps(cams, boxes):
+    """Per view a 2D segment map: each (id, x0, x1) box of world x projected as the columns it covers."""
+    maps = []
+    for f in range(len(cams)):
+        m = np.zeros((H, W), np.int64)
+        for seg_id, x0, x1 in boxes:
+            uv, _ = cams.project(f, np.array([[x0, 0.0, 0.5], [x1, 0.0, 0.5]]))
+            c0, c1 = np.clip(np.floor(uv[:, 0]).astype(int), 0, W - 1)
+            m[:, c0:c1 + 1] = seg_id
+        maps.append(m)
+    return maps
+
+
+def test_fragments_one_2d_segment_covers_merge_and_neighbours_stay_apart():
+    rng = np.random.default_rng(0)
+    # One object split into fragments 1 and 2 (the field used two channels); a second object of the same
+    # class (3) next to it with its own 2D segment; stuff (0) behind everything.
+    xyz = np.concatenate([_plate(-1.0, -0.3, 800, rng), _plate(-0.25, 0.2, 600, rng), _plate(0.35, 1.0, 800, rng),
+                          _plate(-2, 2, 3000, rng, y=1.0)])
+    instance = np.array([1] * 800 + [2] * 600 + [3] * 800 + [0] * 3000)
+    semantic = np.array([7] * 2200 + [1] * 3000)
+    cams = _views()
+    maps = _segment_maps(cams, [(11, -1.0, 0.2), (12, 0.35, 1.0)])
+    votes = segment_votes(xyz, instance, cams, np.arange(3), lambda f: maps[f])
+    assert set(np.unique(votes[:, 1])) == {1, 2, 3}
+    merged, n = merge_fragments(instance, np.array([0, 7, 7, 7]), votes, min_views=2)
+    assert n == 1
+    assert (merged[:1400] == 1).all() and (merged[1400:2200] == 3).all() and (merged[2200:] == 0).all()
+    # A class boundary is kept: the same geometry with fragment 2 of another class does not merge.
+    _, n_other = merge_fragments(instance, np.array([0, 7, 8, 7]), votes, min_views=2)
+    assert n_other == 0
+
+
+def test_a_2d_segment_over_both_objects_in_a_minority_of_views_does_not_merge_them():
+    rng = np.random.default_rng(1)
+    xyz = np.concatenate([_plate(-1.0, -0.1, 800, rng), _plate(0.1, 1.0, 800, rng)])
+    instance = np.array([1] * 800 + [2] * 800)
+    cams = _views()
+    apart = _segment_maps(cams, [(11, -1.0, -0.1), (12, 0.1, 1.0)])
+    joined = _segment_maps(cams, [(13, -1.0, 1.0)])
+    maps = [joined[0], apart[1], apart[2]]  # the segmenter merged the two objects in one view of three
+    votes = segment_votes(xyz, instance, cams, np.arange(3), lambda f: maps[f])
+    _, n = merge_fragments(instance, np.array([0, 7, 7]), votes, min_views=2)
+    assert n == 0
+
+
+def test_occluded_points_do_not_vote():
+    rng = np.random.default_rng(2)
+    front = _plate(-1.0, 1.0, 4000, rng)  # instance 1 hides instance 2 behind it
+    back = _plate(-0.5, 0.5, 1000, rng, y=0.5)
+    xyz = np.concatenate([front, back])
+    instance = np.array([1] * 4000 + [2] * 1000)
+    cams = _views()
+    maps = _segment_maps(cams, [(11, -1.0, 1.0)])
+    votes = segment_votes(xyz, instance, cams, np.arange(3), lambda f: maps[f])
+    assert 2 not in votes[:, 1]
+
+
+def test_crumbs_fold_into_their_neighbour_and_counts_are_reported():
+    rng = np.random.default_rng(3)
+    big = rng.uniform(0, 1, (3000, 3))
+    crumb = np.array([0.5, 0.5, 1.0]) + rng.uniform(0, 0.02, (6, 3))  # another channel, on top of `big`
+    far = np.array([9.0, 9.0, 9.0]) + rng.uniform(0, 0.02, (5, 3))  # alone in space
+    xyz = np.concatenate([big, crumb, far])
+    semantic = np.array([7] * 3000 + [8] * 6 + [7] * 5)
+    instance = np.array([1] * 3000 + [2] * 6 + [3] * 5)
+    cams = _views()
+    sem, inst, keep, stats = clean_instances(xyz, xyz, semantic, instance, cameras=cams, frames=np.arange(3),
+                                             segments_of=lambda f: np.zeros((H, W), np.int64), link_radius=0.1,
+                                             crumb_points=10)
+    assert (inst[3000:3006] == 1).all() and (sem[3000:3006] == 7).all(), "the crumb joins the object it lies on"
+    assert not keep[3006:].any(), "an isolated crumb is dropped"
+    assert stats["instances_before"] == 3 and stats["instances_after"] == 1
+    assert stats["crumbs_folded"] == 1 and stats["crumbs_dropped"] == 1
+    _, inst0, keep0, stats0 = clean_instances(xyz, xyz, semantic, instance, cameras=cams, frames=np.arange(3),
+                                              segments_of=lambda f: np.zeros((H, W), np.int64), link_radius=0.1,
+                                              crumb_points=0)
+    assert keep0.all() and stats0["instances_after"] == 3
