@@ -35,6 +35,8 @@ from typing import Any, Callable
 
 import numpy as np
 
+from lift3d.export.instances import _contiguous_ids, _relabel_fragments
+
 
 def segment_votes(xyz_world: np.ndarray, instance: np.ndarray, cameras, frames: np.ndarray,
                   segments_of: Callable[[int], np.ndarray], *, max_views: int = 24, min_points: int = 5,
@@ -208,8 +210,6 @@ def clean_instances(xyz: np.ndarray, xyz_world: np.ndarray, semantic: np.ndarray
         Instance ids contiguous ``1..K`` by size as :func:`~lift3d.export.instances.assign_instances` gives
         them; ``keep`` False for dropped crumbs; ``stats`` the counts for ``metadata.json``.
     """
-    from lift3d.export.instances import _contiguous_ids, _relabel_fragments
-
     semantic = np.asarray(semantic, np.int32).copy()
     instance = np.asarray(instance, np.int64)
     stats: dict[str, Any] = {"instances_before": count_instances(instance), "fragments_merged": 0,

@@ -277,10 +277,11 @@ class TrainingData:
         slot = torch.arange(width, device=dev)
         group = (first[:, None] + slot[None, :]).clamp(max=len(self.seg_start) - 1)
         weight = torch.where(self.seg_is_thing[group], float(thing_weight), 1.0) * (slot[None, :] < n_seg[:, None])
-        # torch.multinomial takes the CPU generator; draw there and move (a few dozen numbers per step).
-        pick = torch.multinomial(weight.float().cpu(), k_segments, replacement=True, generator=generator).to(dev)
+        # draws on the generator's device (the training device; see Trainer), results on the batch's
+        gdev = generator.device if generator is not None else dev
+        pick = torch.multinomial(weight.float().to(gdev), k_segments, replacement=True, generator=generator).to(dev)
         chosen = group.gather(1, pick).reshape(-1)  # [k * K]
-        r = torch.rand(len(chosen), m_rays, generator=generator).to(dev)
+        r = torch.rand(len(chosen), m_rays, device=gdev, generator=generator).to(dev)
         within = (r * self.seg_count[chosen][:, None].float()).long().clamp_max(self.seg_count[chosen][:, None] - 1)
         flat = self.seg_pixels[self.seg_start[chosen][:, None] + within].reshape(-1)
         f = local.repeat_interleave(k_segments * m_rays)

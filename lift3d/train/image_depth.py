@@ -155,7 +155,8 @@ def _sparse_points(scene: Scene, frames: np.ndarray, cache: Path | None, progres
     if cache is not None and (cache / "sparse" / "points3D.ply").is_file():
         return read_sparse_points(cache / "sparse" / "points3D.ply", cache / "sparse" / "observations.npz",
                                   frame_names=names), "triangulated (cached)"
-    # here, not at module level: OpenCV's feature code loads only when a run triangulates
+    # here, not at module level: keeps `import lift3d.train` cheap (OpenCV's feature code loads only when a
+    # run triangulates)
     from lift3d.sfm import triangulate_scene
 
     sparse = triangulate_scene(scene, frames, progress=progress)
@@ -200,7 +201,8 @@ def _dense_maps(scene: Scene, frames: np.ndarray, sparse: SparsePoints, cache: P
         with np.load(path, allow_pickle=False) as z:
             if [str(n) for n in z["names"]] == names:
                 return DenseDepth(names, list(z["depth"]), list(z["sigma"])), "plane sweep (cached)"
-    # here, not at module level: the plane sweep's OpenCV code loads only when a run uses it
+    # here, not at module level: keeps `import lift3d.train` cheap (the plane sweep's OpenCV code loads only
+    # when a run uses it)
     from lift3d.sfm import plane_sweep_scene
 
     dense = plane_sweep_scene(scene, frames, sparse=sparse, progress=progress)
