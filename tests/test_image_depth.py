@@ -20,6 +20,7 @@ from lift3d.synth import make_scene
 from lift3d.train.data import TrainingData
 from lift3d.train.image_depth import image_depth_targets
 from lift3d.train.trainer import train
+from test_device import checked_draws  # noqa: F401  (a fixture: draws checked against the generator's device)
 from test_sfm import textured_plane_scene
 
 TINY = {
@@ -127,6 +128,14 @@ def test_target_rays_end_at_the_points_and_carry_their_sigma(room):
     assert np.all(s >= 0.02 * norm.scale - 1e-6) and np.all(s < 0.02 * norm.scale * 1.3)
     # Pixels, labels and colour of a target ray are those of the pixel it goes through.
     assert batch.rgb.shape[0] == batch.origins.shape[0] == batch.semantic.shape[0]
+
+
+def test_target_rays_are_drawn_on_the_generators_device(room, tmp_path, checked_draws):
+    """The rays through the points are drawn like every other batch ray (CUDA rejects a CPU draw there)."""
+    res = train(room, preset="fast", output_dir=tmp_path / "runs", overrides=TINY, progress=False,
+                print_summary=False)
+    assert res.summary["image_depth"]["targets"] > 0
+    assert ("rand", "cpu") in checked_draws
 
 
 def test_source_none_and_frames_with_depth_maps_get_no_targets(room):

@@ -229,7 +229,7 @@ class TrainingData:
         sigma = None
         if self.num_targets and target_rays_per_image > 0:
             first, count = self.target_offsets[local], self.target_offsets[local + 1] - self.target_offsets[local]
-            r = torch.rand(k, target_rays_per_image, generator=generator).to(dev)
+            r = torch.rand(k, target_rays_per_image, generator=generator, device=generator.device).to(dev)
             pick = (first[:, None] + (r * count[:, None].float()).long().clamp_max((count - 1).clamp_min(0)[:, None]))
             pick = pick[(count > 0)[:, None].expand_as(pick)]
             t_flat = self.target_flat[pick]
@@ -278,7 +278,7 @@ class TrainingData:
         group = (first[:, None] + slot[None, :]).clamp(max=len(self.seg_start) - 1)
         weight = torch.where(self.seg_is_thing[group], float(thing_weight), 1.0) * (slot[None, :] < n_seg[:, None])
         # draws on the generator's device (the training device; see Trainer), results on the batch's
-        gdev = generator.device if generator is not None else dev
+        gdev = generator.device
         pick = torch.multinomial(weight.float().to(gdev), k_segments, replacement=True, generator=generator).to(dev)
         chosen = group.gather(1, pick).reshape(-1)  # [k * K]
         r = torch.rand(len(chosen), m_rays, device=gdev, generator=generator).to(dev)
