@@ -75,7 +75,9 @@ class ImageDepthConfig:
     """``sparse``: triangulated points (the scene's ``sparse_points`` — ``lift3d triangulate``'s or COLMAP's
     kept by ``lift3d convert`` — else triangulated from the training frames at the start, cached in the run
     folder); ``dense``: those and plane-sweep depth maps (the scene's ``mvs_depth_file_path``, else computed
-    at the start); ``none``: colours only; ``auto``: the measured default (``sparse``)."""
+    at the start); ``planes``: the sparse points and, at the pixels the 2D labels give a stuff class, where
+    the ray meets the planes fitted to that class's points (:mod:`lift3d.sfm.planes`); ``none``: colours only;
+    ``auto``: the measured default (``sparse``)."""
     rays_per_image: int = 32
     """Rays per image and step drawn among the pixels that have a depth target (besides the random rays;
     sparse points cover ~1 % of the pixels, so random rays would rarely meet one)."""
@@ -83,6 +85,15 @@ class ImageDepthConfig:
     """Each target's standard deviation is multiplied by this."""
     min_sigma: float = 0.005
     """Smallest standard deviation of a target (normalised units; about 2 cm in an 8 m room)."""
+    plane_threshold: float = 0.01
+    """``planes``: RANSAC inlier distance, as a fraction of the scene's diagonal."""
+    plane_min_points: int = 8
+    """``planes``: fewest triangulated points of one class that make a plane."""
+    plane_margin: float = 0.1
+    """``planes``: how far a plane reaches beyond the hull of its points, as a fraction of the diagonal."""
+    plane_stride: int = 4
+    """``planes``: a target at every ``plane_stride``-th pixel of each row and column (planes cover most of a
+    view; denser targets would crowd out the sparse points on objects when target rays are drawn)."""
 
 
 @dataclass

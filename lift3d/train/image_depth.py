@@ -9,7 +9,10 @@ what a depth-supervised NeRF (DS-NeRF, Deng et al., CVPR 2022) trains with. Wher
 * otherwise points triangulated here at the start of training (:func:`lift3d.sfm.triangulate_scene` on the
   training frames), cached in the run folder so that a resumed run does not redo them;
 * with ``image_depth.source dense``, also plane-sweep depth maps (the scene's ``mvs_depth_file_path``, or
-  :func:`lift3d.sfm.plane_sweep_scene` here, cached likewise).
+  :func:`lift3d.sfm.plane_sweep_scene` here, cached likewise);
+* with ``image_depth.source planes``, also the planes of the stuff classes fitted to those points
+  (:mod:`lift3d.sfm.planes`): at every ``plane_stride``-th pixel the 2D labels give a stuff class, where the
+  ray first meets a plane of that class.
 
 Too few points (too little texture, overlap or baseline) is a warning recorded in ``config.yml`` and the
 training summary; training then goes on with what there is, RGB only when there is nothing.
@@ -36,7 +39,7 @@ from lift3d.utils.atomic import write_bytes_atomic
 MIN_OBSERVATIONS_PER_FRAME = 10
 #: The cache of a run folder: triangulated points and plane-sweep maps computed at training start.
 CACHE_DIR = "image_depth"
-SOURCES = ("auto", "sparse", "dense", "none")
+SOURCES = ("auto", "sparse", "dense", "planes", "none")
 
 
 @dataclass
@@ -53,7 +56,7 @@ class DepthTargets:
     z, sigma : np.ndarray
         ``float32 [T]`` z-depth (along the optical axis) and its standard deviation, world units.
     dense : np.ndarray
-        ``bool [T]`` the target comes from a plane-sweep depth map (else from a sparse point).
+        ``bool [T]`` the target comes from a plane-sweep depth map or a stuff plane (else from a sparse point).
     info : dict
         What config.yml and the summary record: ``source``, ``points``, ``observations``,
         ``median_error_px``, ``dense_coverage``, ``targets``, ``frames_with_targets``, ``seconds``,
@@ -129,6 +132,9 @@ def image_depth_targets(scene: Scene, frames: np.ndarray, cfg: ImageDepthConfig,
         rows = _dense_rows(scene, dense, targets_for)
         info["dense_coverage"] = round(float(len(rows[0])) / max(1, _pixels(scene, targets_for)), 4)
         parts.append(rows)
+    if source == "planes":
+        rows, info["planes"] = _plane_rows(scene, sparse, frames, targets_for, cfg)
+        parts.append(rows)
     frame, u, v, z, sigma, dense_flag = (np.concatenate(a) for a in zip(*parts))
     finite = np.isfinite(z) & np.isfinite(sigma) & (z > 0) & (sigma > 0)
     targets = DepthTargets(frame[finite], u[finite], v[finite], z[finite], sigma[finite], dense_flag[finite], info)
@@ -187,6 +193,82 @@ def _sparse_rows(scene: Scene, sparse: SparsePoints, targets_for: np.ndarray):
     z, s = sparse.obs_depth[keep][inside], sparse.obs_sigma[keep][inside]
     # observations.npz puts pixel (c, r)'s centre at (c + .5, r + .5); rays put it at (c, r).
     return f, uv[:, 0] - 0.5, uv[:, 1] - 0.5, z.astype(np.float32), s.astype(np.float32), np.zeros(len(f), bool)
+
+
+# ------------------------------------------------------------------------------------------ stuff planes
+def scene_diagonal(scene: Scene, sparse: SparsePoints | None = None) -> float:
+    """Length of the scene box's diagonal, else of the box around the cameras and the middle 90 % of the
+    sparse points (world units)."""
+    if scene.scene_box is not None:
+        box = np.asarray(scene.scene_box.aabb, np.float64)
+        return float(np.linalg.norm(box[1] - box[0]))
+    pts = scene.cameras.centers
+    if sparse is not None and len(sparse):
+        lo, hi = np.percentile(sparse.xyz, [5, 95], axis=0)
+        pts = np.r_[pts, lo[None], hi[None]]
+    return float(np.linalg.norm(pts.max(0) - pts.min(0)))
+
+
+def _plane_rows(scene: Scene, sparse: SparsePoints, frames: np.ndarray, targets_for: np.ndarray,
+                cfg: ImageDepthConfig):
+    """Targets where the rays of stuff-labelled pixels first meet a plane of their own class."""
+    # here, not at module level: keeps `import lift3d.train` cheap (lift3d.sfm loads OpenCV)
+    from lift3d.sfm.mvs import scene_up
+    from lift3d.sfm.planes import fit_planes, point_classes
+
+    empty = (np.zeros(0, np.int64),) + (np.zeros(0, np.float32),) * 4 + (np.zeros(0, bool),)
+    stuff = scene.stuff_ids
+    info: dict[str, Any] = {"planes": 0}
+    if not len(sparse) or not stuff:
+        return empty, info
+    diag = scene_diagonal(scene, sparse)
+    labels = {int(i): scene.pseudo_labels(int(i)).semantic for i in frames}
+    seen = np.isin(sparse.obs_frame, list(labels))
+    obs_class = np.zeros(len(sparse.obs_frame), np.int64)
+    for i, sem in labels.items():
+        k = np.flatnonzero(seen & (sparse.obs_frame == i))
+        h, w = sem.shape
+        col = np.clip(np.floor(sparse.obs_uv[k, 0]).astype(np.int64), 0, w - 1)
+        row = np.clip(np.floor(sparse.obs_uv[k, 1]).astype(np.int64), 0, h - 1)
+        obs_class[k] = sem[row, col]
+    classes = point_classes(sparse.obs_point, obs_class, len(sparse))
+    planes = fit_planes(sparse.xyz, classes, stuff, threshold=cfg.plane_threshold * diag,
+                        min_points=cfg.plane_min_points, margin=cfg.plane_margin * diag, up=scene_up(scene.cameras),
+                        sightlines=(scene.cameras.centers[sparse.obs_frame], sparse.xyz[sparse.obs_point]))
+    info.update(planes=len(planes), classes=[sorted(c) for c in planes.classes], points_on_planes=int(planes.inliers.sum()), median_rms=round(float(np.median(planes.rms)), 4) if len(planes) else None)
+    if not len(planes):
+        return empty, info
+    stride = max(1, int(cfg.plane_stride))
+    floor_sigma = 0.5 * cfg.plane_threshold * diag
+    out = []
+    for i in targets_for:
+        i = int(i)
+        sem = labels.get(i)
+        if sem is None:
+            sem = scene.pseudo_labels(i).semantic
+        h, w = sem.shape
+        r, c = np.mgrid[stride // 2:h:stride, stride // 2:w:stride]
+        r, c = r.ravel(), c.ravel()
+        cls = sem[r, c]
+        keep = np.isin(cls, sorted(set().union(*planes.classes)))
+        r, c, cls = r[keep], c[keep], cls[keep]
+        if not len(r):
+            continue
+        o, d = scene.cameras.rays(i, c, r)
+        t, k = planes.first_hit(o, d)
+        ok = k >= 0
+        ok &= planes.holds(k, cls)
+        axis = scene.cameras.c2w_opencv[i][:3, 2]
+        z = t[ok] * (d[ok] @ axis)
+        sigma = np.maximum(planes.rms[k[ok]], floor_sigma)
+        n = int(ok.sum())
+        out.append((np.full(n, i, np.int64), c[ok].astype(np.float32), r[ok].astype(np.float32),
+                    z.astype(np.float32), sigma.astype(np.float32), np.ones(n, bool)))
+    if not out:
+        return empty, info
+    rows = tuple(np.concatenate(a) for a in zip(*out))
+    info["targets"] = int(len(rows[0]))
+    return rows, info
 
 
 # ------------------------------------------------------------------------------------------ dense maps

@@ -1,0 +1,352 @@
+"""Planes of the stuff classes, fitted to triangulated points: depth where the images have too little texture.
+
+Walls, floors and ceilings are most of an indoor view, and the part that photo-consistency pins down least:
+docs/sfm.md measures 1–2 sparse observations per 1000 wall pixels and a few percent of dense coverage. They
+are also planes. A handful of triangulated points that the 2D labels put on one wall fixes that wall's
+plane, and then every pixel the labels call wall has a depth: where its ray first meets one of the scene's
+stuff planes, provided that plane is of the pixel's class (a ray that meets the floor plane first cannot see
+a wall; a furniture pixel the segmenter called wall gets no target when the plane it meets first disagrees).
+
+1. **Each point's class**: the majority of the pseudo-label classes at its observations (at least
+   ``min_share`` of them agree), so keypoints on an object's edge that the labels split go nowhere.
+2. **Planes per stuff class**: sequential RANSAC (inliers within ``threshold`` of the plane), refined by a
+   least-squares fit of the inliers, each plane kept when it holds ``min_points`` inliers spread over an
+   area (not a line); the inliers leave and the next plane is searched among the rest.
+3. **Extent**: the convex hull of a plane's inliers in its own 2D coordinates, grown by ``margin``. A ray
+   meets the plane only inside it, so the plane of one wing of an L-shaped room does not cut through the
+   other wing. (For a convex room the nearest plane a ray meets is the room's surface whatever the extent.)
+
+Examples
+--------
+Two walls of a box room, 40 points each; the ray from the middle looking along +x meets the wall x = 2:
+
+>>> rng = np.random.default_rng(0)
+>>> a = np.c_[np.full(40, 2.0), rng.uniform(-2, 2, 40), rng.uniform(0, 3, 40)]
+>>> b = np.c_[rng.uniform(-2, 2, 40), np.full(40, 2.0), rng.uniform(0, 3, 40)]
+>>> planes = fit_planes(np.r_[a, b], np.r_[np.full(40, 1), np.full(40, 1)], [1], threshold=0.02)
+>>> len(planes)
+2
+>>> t, k = planes.first_hit(np.array([[0.0, 0.0, 1.5]]), np.array([[1.0, 0.0, 0.0]]))
+>>> round(float(t[0]), 3), sorted(planes.classes[k[0]])
+(2.0, [1])
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+
+
+@dataclass
+class StuffPlanes:
+    """Planes ``n · x + d = 0`` with a class, a residual and an extent.
+
+    Attributes
+    ----------
+    normal : np.ndarray
+        ``[P, 3]`` unit normals.
+    offset : np.ndarray
+        ``[P]`` ``d``.
+    classes : list of frozenset
+        Per plane, the categories of its inliers (those with a share of them, see :func:`fit_planes`).
+    rms : np.ndarray
+        ``[P]`` root mean square distance of the inliers to the plane (world units).
+    inliers : np.ndarray
+        ``int64 [P]`` number of inlier points.
+    origin, basis : np.ndarray
+        ``[P, 3]`` and ``[P, 2, 3]``: the plane's 2D coordinates of ``x`` are ``basis @ (x - origin)``.
+    hull : list of np.ndarray
+        Per plane, ``[E, 3]`` half-planes ``a · p + b <= margin`` (unit ``a``) of the inliers' convex hull.
+    margin : float
+        How far beyond its hull a plane still counts (world units).
+    """
+
+    normal: np.ndarray
+    offset: np.ndarray
+    classes: list
+    rms: np.ndarray
+    inliers: np.ndarray
+    origin: np.ndarray
+    basis: np.ndarray
+    hull: list = field(default_factory=list)
+    margin: float = 0.0
+
+    def __len__(self) -> int:
+        return len(self.offset)
+
+    def holds(self, plane: np.ndarray, class_id: np.ndarray) -> np.ndarray:
+        """``[R] bool``: plane ``plane[r]`` (``-1`` = none) holds class ``class_id[r]``."""
+        out = np.zeros(len(plane), bool)
+        for k, cls in enumerate(self.classes):
+            m = plane == k
+            out[m] = np.isin(class_id[m], list(cls))
+        return out
+
+    def first_hit(self, origins: np.ndarray, directions: np.ndarray, min_cos: float = 0.1,
+                  t_min: float = 1e-6) -> tuple[np.ndarray, np.ndarray]:
+        """Where each ray first meets a plane inside the plane's extent.
+
+        Parameters
+        ----------
+        origins, directions : np.ndarray
+            ``[R, 3]`` rays (unit directions).
+        min_cos : float
+            A ray closer to parallel with a plane than this (``|cos|`` of the angle to its normal) ignores it.
+
+        Returns
+        -------
+        t : np.ndarray
+            ``[R]`` distance along the ray (``inf`` when no plane is met).
+        plane : np.ndarray
+            ``int64 [R]`` index of the plane met (``-1`` when none).
+        """
+        r = len(origins)
+        t_best = np.full(r, np.inf)
+        best = np.full(r, -1, np.int64)
+        for k in range(len(self)):
+            n, d = self.normal[k], self.offset[k]
+            cos = directions @ n
+            with np.errstate(divide="ignore", invalid="ignore"):
+                t = -(origins @ n + d) / cos
+            ok = (np.abs(cos) >= min_cos) & (t > t_min) & (t < t_best)
+            if not ok.any():
+                continue
+            idx = np.flatnonzero(ok)
+            p = origins[idx] + t[idx, None] * directions[idx]
+            p2 = (p - self.origin[k]) @ self.basis[k].T
+            inside = np.all(p2 @ self.hull[k][:, :2].T + self.hull[k][:, 2] <= self.margin, axis=1)
+            idx = idx[inside]
+            t_best[idx] = t[idx]
+            best[idx] = k
+        return t_best, best
+
+
+def point_classes(obs_point: np.ndarray, obs_class: np.ndarray, num_points: int,
+                  min_share: float = 0.6) -> np.ndarray:
+    """Each point's class: the majority of its observations' classes, when ``min_share`` of them agree.
+
+    Parameters
+    ----------
+    obs_point, obs_class : np.ndarray
+        ``[M]`` point index and label class (0 = void, ignored) of every observation.
+
+    Returns
+    -------
+    np.ndarray
+        ``int64 [num_points]`` class id, 0 where the observations disagree or are void.
+    """
+    obs_point = np.asarray(obs_point, np.int64)
+    obs_class = np.asarray(obs_class, np.int64)
+    labelled = obs_class > 0
+    out = np.zeros(num_points, np.int64)
+    if not labelled.any():
+        return out
+    p, c = obs_point[labelled], obs_class[labelled]
+    pairs, counts = np.unique(p * (int(c.max()) + 1) + c, return_counts=True)
+    pp, cc = pairs // (int(c.max()) + 1), pairs % (int(c.max()) + 1)
+    order = np.lexsort((-counts, pp))  # per point, the most observed class first
+    first = np.r_[True, pp[order][1:] != pp[order][:-1]]
+    top_point, top_class, top_count = pp[order][first], cc[order][first], counts[order][first]
+    total = np.bincount(p, minlength=num_points)[top_point]
+    agree = top_count >= min_share * total
+    out[top_point[agree]] = top_class[agree]
+    return out
+
+
+def fit_planes(points: np.ndarray, classes: np.ndarray, stuff_ids, threshold: float, min_points: int = 15,
+               max_planes: int = 24, iterations: int = 500, margin: float = 0.0, min_class_share: float = 0.25,
+               up: np.ndarray | None = None, sightlines: tuple[np.ndarray, np.ndarray] | None = None,
+               candidates: int = 16, seed: int = 0) -> StuffPlanes:
+    """Sequential RANSAC planes of the stuff classes' points (see the module docstring).
+
+    The points of all stuff classes are fitted together and each plane takes the classes of its inliers: fitted
+    class by class, the bottom edges of four walls (a wall's points near the floor, which the labels call
+    wall) make a horizontal "wall" plane that wins over every single wall; fitted together, they join the floor.
+
+    Parameters
+    ----------
+    points : np.ndarray
+        ``[N, 3]`` world points.
+    classes : np.ndarray
+        ``[N]`` class of each point (:func:`point_classes`; 0 = none).
+    stuff_ids : iterable of int
+        Classes to fit planes to.
+    threshold : float
+        Inlier distance (world units).
+    min_points : int
+        Fewest inliers of a plane.
+    max_planes : int
+        Most planes.
+    margin : float
+        Stored in the result: how far beyond its inliers' hull a plane extends.
+    min_class_share : float
+        A plane holds every class with at least this share of its inliers.
+    up : np.ndarray, optional
+        The scene's up direction. Given, planes are horizontal or vertical (floors, ceilings, walls, roads,
+        façades): a horizontal plane needs one point and a vertical one two, so a few points per wall
+        suffice and a horizontal slab through the feet of all walls is not a candidate for a wall. The up
+        direction is first refined to the normal of the largest plane within 25° of it.
+    sightlines : (np.ndarray, np.ndarray), optional
+        ``[M, 3]`` camera centres and ``[M, 3]`` the points they see (every observation, things too). A
+        plane that sight lines cross inside its extent is contradicted by the views: of the ``candidates``
+        best RANSAC planes the one with most inliers minus crossings wins. Without this, objects' points
+        the labels call floor make horizontal slabs above the floor, which floor pixels' rays meet first.
+    candidates : int
+        RANSAC planes scored against the sight lines per plane found.
+    seed : int
+        RANSAC's random draws (the result is deterministic for a seed).
+    """
+    rng = np.random.default_rng(seed)
+    points = np.asarray(points, np.float64)
+    classes = np.asarray(classes, np.int64)
+    stuff = np.isin(classes, [int(c) for c in stuff_ids])
+    left, left_cls = points[stuff], classes[stuff]
+    if up is not None and len(left) >= min_points:
+        up = _refined_up(left, np.asarray(up, np.float64) / np.linalg.norm(up), threshold, min_points, rng)
+    rows: list[tuple] = []
+    for _ in range(max_planes):
+        if len(left) < min_points:
+            break
+        best = None
+        for n, d in _ransac_planes(left, threshold, iterations, rng, up, candidates if sightlines else 1):
+            inl = np.abs(left @ n + d) < threshold
+            if inl.sum() < min_points:
+                continue
+            n, d = _least_squares_plane(left[inl], n if up is not None else None)
+            inl = np.abs(left @ n + d) < threshold
+            extent = _extent(left[inl], n, threshold)
+            if extent is None:
+                continue
+            crossings = 0 if sightlines is None else _crossings(sightlines, n, d, extent, threshold, margin)
+            score = int(inl.sum()) - crossings
+            if score >= min_points and (best is None or score > best[0]):
+                best = (score, n, d, inl, extent, crossings)
+        if best is None:
+            break
+        _, n, d, inl, (origin, basis, hull), crossings = best
+        pts, pts_cls = left[inl], left_cls[inl]
+        left, left_cls = left[~inl], left_cls[~inl]
+        ids, counts = np.unique(pts_cls, return_counts=True)
+        held = ids[counts >= min_class_share * len(pts)]
+        rms = float(np.sqrt(np.mean((pts @ n + d) ** 2)))
+        rows.append((n, d, frozenset(int(c) for c in held), rms, len(pts), origin, basis, hull))
+    if not rows:
+        z3 = np.zeros((0, 3))
+        return StuffPlanes(z3, np.zeros(0), [], np.zeros(0), np.zeros(0, np.int64), z3, np.zeros((0, 2, 3)), [],
+                           float(margin))
+    n, d, cls, rms, cnt, origin, basis, hull = zip(*rows)
+    return StuffPlanes(np.array(n), np.array(d), list(cls), np.array(rms), np.array(cnt, np.int64),
+                       np.array(origin), np.array(basis), list(hull), float(margin))
+
+
+def _ransac_planes(x: np.ndarray, threshold: float, iterations: int, rng: np.random.Generator,
+                   up: np.ndarray | None = None, keep: int = 1) -> list[tuple[np.ndarray, float]]:
+    """The ``keep`` planes (distinct) that most of ``x`` lie within ``threshold`` of, among planes through 3
+    random points (with ``up``: horizontal planes through one point and vertical ones through two)."""
+    idx = rng.integers(0, len(x), size=(iterations, 3))
+    a, b, c = x[idx[:, 0]], x[idx[:, 1]], x[idx[:, 2]]
+    if up is None:
+        n = np.cross(b - a, c - a)
+    else:
+        along = b - a
+        along -= np.outer(along @ up, up)
+        vertical = np.cross(up, along)
+        n = np.concatenate([vertical, np.broadcast_to(up, (iterations, 3))])
+        a = np.concatenate([a, c])
+    norm = np.linalg.norm(n, axis=1)
+    ok = norm > 1e-9
+    if not ok.any():
+        return []
+    n = n[ok] / norm[ok, None]
+    d = -np.einsum("ij,ij->i", n, a[ok])
+    near = np.abs(x @ n.T + d) < threshold
+    counts = near.sum(0)
+    out, taken = [], np.zeros(len(x), bool)
+    for k in np.argsort(-counts, kind="stable"):
+        if len(out) == keep or counts[k] == 0:
+            break
+        # distinct: most of its inliers are not those of a plane already kept
+        if (near[:, k] & taken).sum() > 0.5 * counts[k]:
+            continue
+        taken |= near[:, k]
+        out.append((n[k], float(d[k])))
+    return out
+
+
+def _extent(pts: np.ndarray, n: np.ndarray, threshold: float):
+    """``(origin, basis, hull equations)`` of inliers ``pts`` in the plane, or None when they lie along a line."""
+    from scipy.spatial import ConvexHull, QhullError
+
+    origin = pts.mean(0)
+    basis = _plane_basis(n)
+    p2 = (pts - origin) @ basis.T
+    # Points along a line (one row of keypoints) do not fix a plane: its spread must be 2D.
+    spread = np.linalg.svd(p2 - p2.mean(0), compute_uv=False) / np.sqrt(len(p2))
+    if len(spread) < 2 or spread[1] < 3 * threshold:
+        return None
+    try:
+        return origin, basis, ConvexHull(p2).equations
+    except QhullError:
+        return None
+
+
+def _crossings(sightlines, n: np.ndarray, d: float, extent, threshold: float, margin: float) -> int:
+    """How many sight lines (camera → seen point) pass through the plane inside its extent, their point more
+    than ``threshold`` beyond it."""
+    cam, pt = sightlines
+    sc, sp = cam @ n + d, pt @ n + d
+    cross = (np.sign(sc) != np.sign(sp)) & (np.abs(sp) > threshold) & (np.abs(sc) > 0)
+    if not cross.any():
+        return 0
+    c, p = cam[cross], pt[cross]
+    f = (sc[cross] / (sc[cross] - sp[cross]))[:, None]
+    hit = c + f * (p - c)
+    origin, basis, hull = extent
+    p2 = (hit - origin) @ basis.T
+    return int(np.all(p2 @ hull[:, :2].T + hull[:, 2] <= margin, axis=1).sum())
+
+
+def _least_squares_plane(x: np.ndarray, like: np.ndarray | None = None) -> tuple[np.ndarray, float]:
+    """Least-squares plane of ``x``; with ``like`` (a unit normal), that normal's orientation is kept and only
+    the offset fitted, except that a vertical ``like`` may turn about the vertical (``like`` must then be
+    horizontal or vertical with respect to the caller's up: the ``_ransac_plane`` candidates)."""
+    c = x.mean(0)
+    if like is None:
+        n = np.linalg.svd(x - c, full_matrices=False)[2][2]
+        return n, float(-n @ c)
+    return like, float(-like @ c)
+
+
+def _refined_up(x: np.ndarray, up: np.ndarray, threshold: float, min_points: int,
+                rng: np.random.Generator, iterations: int = 500) -> np.ndarray:
+    """``up`` replaced by the normal of the largest plane among ``x`` within 25° of it, when that plane holds
+    ``2 × min_points`` points (the cameras' mean image-up axis is only roughly up: cameras that all look one
+    way and down tilt it by 10° and more)."""
+    idx = rng.integers(0, len(x), size=(iterations, 3))
+    n = np.cross(x[idx[:, 1]] - x[idx[:, 0]], x[idx[:, 2]] - x[idx[:, 0]])
+    norm = np.linalg.norm(n, axis=1)
+    ok = norm > 1e-9
+    n = n[ok] / norm[ok, None]
+    n *= np.sign(n @ up)[:, None]
+    a = x[idx[ok, 0]]
+    ok = n @ up > np.cos(np.radians(25))
+    if not ok.any():
+        return up
+    n, a = n[ok], a[ok]
+    counts = (np.abs(x @ n.T - np.einsum("pj,pj->p", n, a)) < threshold).sum(0)
+    k = int(np.argmax(counts))
+    if counts[k] < 2 * min_points:
+        return up
+    inl = np.abs(x @ n[k] - n[k] @ a[k]) < threshold
+    pts = x[inl]
+    m = np.linalg.svd(pts - pts.mean(0), full_matrices=False)[2][2]
+    return m if m @ up > 0 else -m
+
+
+def _plane_basis(n: np.ndarray) -> np.ndarray:
+    """``[2, 3]`` orthonormal vectors spanning the plane with normal ``n``."""
+    helper = np.eye(3)[int(np.argmin(np.abs(n)))]
+    e1 = np.cross(n, helper)
+    e1 /= np.linalg.norm(e1)
+    return np.stack([e1, np.cross(n, e1)])

@@ -1,0 +1,125 @@
+"""Stuff planes fitted to triangulated points (lift3d.sfm.planes) and the depth targets they give training."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from lift3d.data.scene import load_scene
+from lift3d.data.stereo import SparsePoints, write_sparse_points
+from lift3d.model.config import ImageDepthConfig
+from lift3d.sfm.planes import fit_planes, point_classes
+from lift3d.synth import make_scene
+from lift3d.train.image_depth import image_depth_targets
+
+WALL, FLOOR = 1, 2
+UP = np.array([0.0, 0.0, 1.0])
+
+
+def _box_room(rng, n_floor=150, n_wall=12, n_slab=40):
+    """Points of a 6 × 4 × 3 m box room (floor z = 0, walls x = ±3, y = ±2) with 1 cm noise, plus object
+    points 0.3 m above the floor that the labels call floor (a slab), and cameras at 1.5 m looking at them."""
+    floor = np.c_[rng.uniform(-2.8, 2.8, n_floor), rng.uniform(-1.8, 1.8, n_floor), np.zeros(n_floor)]
+    walls = []
+    for axis, value in ((0, 3.0), (0, -3.0), (1, 2.0), (1, -2.0)):
+        p = np.c_[rng.uniform(-2.8, 2.8, n_wall), rng.uniform(-1.8, 1.8, n_wall), rng.uniform(0.2, 2.8, n_wall)]
+        p[:, axis] = value
+        walls.append(p)
+    slab = np.c_[rng.uniform(-2.5, 2.5, n_slab), rng.uniform(-1.5, 1.5, n_slab), np.full(n_slab, 0.3)]
+    pts = np.r_[floor, *walls, slab] + rng.normal(0, 0.01, (n_floor + 4 * n_wall + n_slab, 3))
+    cls = np.r_[np.full(n_floor, FLOOR), np.full(4 * n_wall, WALL), np.full(n_slab, FLOOR)]
+    cams = np.c_[rng.uniform(-1.5, 1.5, 8), rng.uniform(-1, 1, 8), np.full(8, 1.5)]
+    # every camera sees every point (enough for the free-space test)
+    sight = (np.repeat(cams, len(pts), 0), np.tile(pts, (len(cams), 1)))
+    return pts, cls, sight
+
+
+def test_box_room_gives_its_floor_and_walls_and_sight_lines_reject_a_slab_of_objects():
+    pts, cls, sight = _box_room(np.random.default_rng(0))
+    planes = fit_planes(pts, cls, [WALL, FLOOR], threshold=0.05, min_points=8, margin=0.3, up=UP, sightlines=sight)
+    heights = [-d for n, d in zip(planes.normal, planes.offset) if abs(n @ UP) > 0.99]
+    walls = [(n, d) for n, d in zip(planes.normal, planes.offset) if abs(n @ UP) < 0.01]
+    assert heights and all(abs(h) < 0.03 for h in heights)  # the floor, not the slab at 0.3 m
+    assert len(walls) == 4 and planes.classes[0] == frozenset({FLOOR})
+    # A ray from the middle of the room looking down and along +x meets the floor at 1.5 / tan(30°) ≈ 2.6 m,
+    # one looking along +x at the wall x = 3.
+    o = np.array([[0.0, 0.0, 1.5], [0.0, 0.0, 1.5]])
+    d = np.array([[np.cos(np.radians(30)), 0.0, -np.sin(np.radians(30))], [1.0, 0.0, 0.0]])
+    t, k = planes.first_hit(o, d)
+    assert t[0] == pytest.approx(3.0, abs=0.05) and t[1] == pytest.approx(3.0, abs=0.05)
+    assert planes.holds(k, np.array([FLOOR, WALL])).all() and not planes.holds(k, np.array([WALL, FLOOR])).any()
+    # Without the sight lines the slab of objects is a floor plane above the floor (what the test guards).
+    blind = fit_planes(pts, cls, [WALL, FLOOR], threshold=0.05, min_points=8, up=UP)
+    assert any(abs(-d - 0.3) < 0.03 for n, d in zip(blind.normal, blind.offset) if abs(n @ UP) > 0.99)
+
+
+def test_a_plane_reaches_only_a_margin_beyond_its_points():
+    rng = np.random.default_rng(1)
+    pts = np.c_[rng.uniform(0, 1, 50), rng.uniform(0, 1, 50), np.zeros(50)]
+    planes = fit_planes(pts, np.full(50, FLOOR), [FLOOR], threshold=0.02, margin=0.2)
+    o = np.array([[0.5, 0.5, 1.0], [1.1, 0.5, 1.0], [1.5, 0.5, 1.0]])
+    t, k = planes.first_hit(o, np.tile([0.0, 0.0, -1.0], (3, 1)))
+    assert k.tolist() == [0, 0, -1] and np.isinf(t[2]) and t[0] == pytest.approx(1.0, abs=0.02)
+
+
+def test_point_class_is_the_majority_of_its_observations_when_they_agree():
+    obs_point = np.array([0, 0, 0, 1, 1, 2, 2, 2, 2])
+    obs_class = np.array([1, 1, 2, 3, 4, 0, 5, 5, 5])
+    assert point_classes(obs_point, obs_class, 4).tolist() == [1, 0, 5, 0]
+
+
+@pytest.fixture(scope="module")
+def floor_room(tmp_path_factory):
+    """A small synthetic room without depth maps whose sparse points are lifted from its exact depth at pixels
+    its ground truth calls floor or wall (each seen in two frames, labelled by the pseudo-labels there)."""
+    root = tmp_path_factory.mktemp("scenes") / "room"
+    make_scene(root, kind="indoor", seed=102, noise="moderate", n_views=10, width=48, height=48, progress=False,
+               depth="none")
+    scene = load_scene(root)
+    rng = np.random.default_rng(0)
+    xyz, obs_f, obs_p, obs_uv, obs_z = [], [], [], [], []
+    frames = [int(i) for i in scene.split("train")]
+    for i in frames:
+        z, sem = scene.gt_depth(i), scene.gt_labels(i).semantic
+        r, c = np.nonzero(np.isin(sem, scene.stuff_ids) & (z > 0))
+        for k in rng.choice(len(r), min(30, len(r)), replace=False):
+            x, y = scene.cameras.normalized_coords(i, np.array([c[k]]), np.array([r[k]]))
+            c2w = scene.cameras.c2w_opencv[i]
+            p = c2w[:3, :3] @ (np.array([x[0], y[0], 1.0]) * z[r[k], c[k]]) + c2w[:3, 3]
+            for j in (i, frames[(frames.index(i) + 1) % len(frames)]):
+                uv, zz = scene.cameras.project(j, p[None])
+                if zz[0] > 0 and (uv[0] >= 0).all() and (uv[0] < 48).all():
+                    obs_f.append(j), obs_p.append(len(xyz)), obs_uv.append(uv[0]), obs_z.append(zz[0])
+            xyz.append(p)
+    n, m = len(xyz), len(obs_f)
+    sparse = SparsePoints(xyz=np.array(xyz), rgb=np.zeros((n, 3), np.uint8), error=np.full(n, 0.2, np.float32),
+                          track_length=np.bincount(obs_p, minlength=n).astype(np.int32), frame_names=[f.name for f in scene.frames],
+                          obs_frame=np.array(obs_f, np.int32), obs_point=np.array(obs_p, np.int32),
+                          obs_uv=np.array(obs_uv, np.float32), obs_depth=np.array(obs_z, np.float32),
+                          obs_sigma=np.full(m, 0.02, np.float32), info={"source": "test"})
+    write_sparse_points(root, sparse)
+    return root
+
+
+def test_plane_targets_give_stuff_pixels_their_depth_and_are_recorded(floor_room):
+    scene = load_scene(floor_room)
+    frames = scene.split("train")
+    targets = image_depth_targets(scene, frames, ImageDepthConfig(source="planes", plane_stride=2))
+    info = targets.info["planes"]
+    assert targets.info["source"] == "planes" and info["planes"] >= 2 and info["targets"] > 0
+    plane = targets.dense
+    assert plane.sum() == info["targets"] and (~plane).sum() == targets.info["observations"]
+    err, floor = [], []
+    for f in np.unique(targets.frame[plane]):
+        m = plane & (targets.frame == f)
+        r, c = targets.v[m].astype(int), targets.u[m].astype(int)
+        err.append(np.abs(targets.z[m] - scene.gt_depth(int(f))[r, c]))
+        floor.append(scene.gt_labels(int(f)).semantic[r, c] == FLOOR)
+    err, floor = np.concatenate(err), np.concatenate(floor)
+    diag = np.linalg.norm(np.diff(scene.scene_box.aabb, axis=0))
+    # Exact points: a pixel's target is off only where the 2D labels are wrong (the labels are noisy).
+    assert floor.sum() > 100 and np.mean(err[floor] < 0.01 * diag) > 0.9
+    assert np.mean(err < 0.01 * diag) > 0.9
+    # Sparse and plane sources differ only by the plane targets.
+    sparse = image_depth_targets(scene, frames, ImageDepthConfig(source="sparse"))
+    assert len(sparse) == (~plane).sum()
