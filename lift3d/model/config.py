@@ -76,7 +76,8 @@ class ImageDepthConfig:
     kept by ``lift3d convert`` — else triangulated from the training frames at the start, cached in the run
     folder); ``dense``: those and plane-sweep depth maps (the scene's ``mvs_depth_file_path``, else computed
     at the start); ``planes``: the sparse points and, at the pixels the 2D labels give a stuff class, where
-    the ray meets the planes fitted to that class's points (:mod:`lift3d.sfm.planes`); ``none``: colours only;
+    the ray meets the planes fitted to the sparse and plane-sweep points of that class
+    (:mod:`lift3d.sfm.planes`); ``none``: colours only;
     ``auto``: the measured default (``sparse``)."""
     rays_per_image: int = 32
     """Rays per image and step drawn among the pixels that have a depth target (besides the random rays;
@@ -88,7 +89,12 @@ class ImageDepthConfig:
     plane_threshold: float = 0.01
     """``planes``: RANSAC inlier distance, as a fraction of the scene's diagonal."""
     plane_min_points: int = 8
-    """``planes``: fewest triangulated points of one class that make a plane."""
+    """``planes``: fewest points (after thinning) that make a plane."""
+    plane_min_share: float = 0.01
+    """``planes``: a plane also needs this share of the stuff points (after thinning)."""
+    plane_voxel: float = 0.01
+    """``planes``: points are thinned to one per cell of this size (fraction of the diagonal) and class
+    before fitting, so densely matched spots do not outvote sparsely matched walls; 0 keeps every point."""
     plane_margin: float = 0.1
     """``planes``: how far a plane reaches beyond the hull of its points, as a fraction of the diagonal."""
     plane_stride: int = 4

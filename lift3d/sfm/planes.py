@@ -281,9 +281,11 @@ def _extent(pts: np.ndarray, n: np.ndarray, threshold: float):
     origin = pts.mean(0)
     basis = _plane_basis(n)
     p2 = (pts - origin) @ basis.T
-    # Points along a line (one row of keypoints) do not fix a plane: its spread must be 2D.
-    spread = np.linalg.svd(p2 - p2.mean(0), compute_uv=False) / np.sqrt(len(p2))
-    if len(spread) < 2 or spread[1] < 3 * threshold:
+    # Points along a line (one row of keypoints, or the corner where two walls meet, which every plane through
+    # it fits) do not fix a plane: most of them must spread in both directions of the plane.
+    axes = np.linalg.svd(p2 - p2.mean(0), full_matrices=False)[2]
+    lo, hi = np.percentile(p2 @ axes.T, [10, 90], axis=0)
+    if np.min(hi - lo) < 6 * threshold:
         return None
     try:
         return origin, basis, ConvexHull(p2).equations

@@ -133,7 +133,8 @@ def image_depth_targets(scene: Scene, frames: np.ndarray, cfg: ImageDepthConfig,
         info["dense_coverage"] = round(float(len(rows[0])) / max(1, _pixels(scene, targets_for)), 4)
         parts.append(rows)
     if source == "planes":
-        rows, info["planes"] = _plane_rows(scene, sparse, frames, targets_for, cfg)
+        dense, info["dense_from"] = _dense_maps(scene, frames, sparse, cache, progress)
+        rows, info["planes"] = _plane_rows(scene, sparse, dense, frames, targets_for, cfg)
         parts.append(rows)
     frame, u, v, z, sigma, dense_flag = (np.concatenate(a) for a in zip(*parts))
     finite = np.isfinite(z) & np.isfinite(sigma) & (z > 0) & (sigma > 0)
@@ -209,9 +210,15 @@ def scene_diagonal(scene: Scene, sparse: SparsePoints | None = None) -> float:
     return float(np.linalg.norm(pts.max(0) - pts.min(0)))
 
 
-def _plane_rows(scene: Scene, sparse: SparsePoints, frames: np.ndarray, targets_for: np.ndarray,
+def _plane_rows(scene: Scene, sparse: SparsePoints, dense: DenseDepth, frames: np.ndarray, targets_for: np.ndarray,
                 cfg: ImageDepthConfig):
-    """Targets where the rays of stuff-labelled pixels first meet a plane of their own class."""
+    """Targets where the rays of stuff-labelled pixels first meet a plane holding their class.
+
+    The planes are fitted to the sparse points (each with its observations' majority class) and the
+    plane-sweep depths (each with its pixel's class): walls get 1–2 sparse points per 1000 pixels but a few
+    percent dense coverage (docs/sfm.md). Points are thinned to one per ``plane_voxel`` cell and class, so a
+    textured corner that the plane sweep covers densely does not outvote a wall; every observation is a
+    sight line for :func:`lift3d.sfm.planes.fit_planes`' free-space test."""
     # here, not at module level: keeps `import lift3d.train` cheap (lift3d.sfm loads OpenCV)
     from lift3d.sfm.mvs import scene_up
     from lift3d.sfm.planes import fit_planes, point_classes
@@ -219,7 +226,7 @@ def _plane_rows(scene: Scene, sparse: SparsePoints, frames: np.ndarray, targets_
     empty = (np.zeros(0, np.int64),) + (np.zeros(0, np.float32),) * 4 + (np.zeros(0, bool),)
     stuff = scene.stuff_ids
     info: dict[str, Any] = {"planes": 0}
-    if not len(sparse) or not stuff:
+    if not stuff:
         return empty, info
     diag = scene_diagonal(scene, sparse)
     labels = {int(i): scene.pseudo_labels(int(i)).semantic for i in frames}
@@ -231,11 +238,30 @@ def _plane_rows(scene: Scene, sparse: SparsePoints, frames: np.ndarray, targets_
         col = np.clip(np.floor(sparse.obs_uv[k, 0]).astype(np.int64), 0, w - 1)
         row = np.clip(np.floor(sparse.obs_uv[k, 1]).astype(np.int64), 0, h - 1)
         obs_class[k] = sem[row, col]
-    classes = point_classes(sparse.obs_point, obs_class, len(sparse))
-    planes = fit_planes(sparse.xyz, classes, stuff, threshold=cfg.plane_threshold * diag,
-                        min_points=cfg.plane_min_points, margin=cfg.plane_margin * diag, up=scene_up(scene.cameras),
-                        sightlines=(scene.cameras.centers[sparse.obs_frame], sparse.xyz[sparse.obs_point]))
-    info.update(planes=len(planes), classes=[sorted(c) for c in planes.classes], points_on_planes=int(planes.inliers.sum()), median_rms=round(float(np.median(planes.rms)), 4) if len(planes) else None)
+    xyz, cls = [sparse.xyz], [point_classes(sparse.obs_point, obs_class, len(sparse))]
+    cams, seen_xyz = [scene.cameras.centers[sparse.obs_frame]], [sparse.xyz[sparse.obs_point]]
+    index = {f.name: k for k, f in enumerate(scene.frames)}
+    for name, depth in zip(dense.frame_names, dense.depth):
+        i = index[name]
+        r, c = np.nonzero(np.asarray(depth) > 0)
+        if i not in labels or not len(r):
+            continue
+        o, d = scene.cameras.rays(i, c, r)
+        p = o + d * (np.asarray(depth)[r, c] / (d @ scene.cameras.c2w_opencv[i][:3, 2]))[:, None]
+        xyz.append(p), cls.append(labels[i][r, c]), cams.append(o), seen_xyz.append(p)
+    xyz, cls = np.concatenate(xyz), np.concatenate(cls).astype(np.int64)
+    if cfg.plane_voxel > 0 and len(xyz):
+        key = np.c_[np.floor(xyz / (cfg.plane_voxel * diag)).astype(np.int64), cls]
+        first = np.unique(key, axis=0, return_index=True)[1]
+        xyz, cls = xyz[first], cls[first]
+    n_stuff = int(np.isin(cls, stuff).sum())
+    planes = fit_planes(xyz, cls, stuff, threshold=cfg.plane_threshold * diag,
+                        min_points=max(cfg.plane_min_points, int(cfg.plane_min_share * n_stuff)),
+                        margin=cfg.plane_margin * diag, up=scene_up(scene.cameras),
+                        sightlines=(np.concatenate(cams), np.concatenate(seen_xyz)))
+    info.update(planes=len(planes), classes=[sorted(c) for c in planes.classes], stuff_points=n_stuff,
+                points_on_planes=int(planes.inliers.sum()),
+                median_rms=round(float(np.median(planes.rms)), 4) if len(planes) else None)
     if not len(planes):
         return empty, info
     stride = max(1, int(cfg.plane_stride))
