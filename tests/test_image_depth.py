@@ -158,7 +158,7 @@ def test_training_triangulates_at_the_start_caches_and_records_it(tmp_path):
     res = train(tmp_path / "plane", preset="fast", output_dir=tmp_path / "runs", overrides=TINY, progress=False,
                 print_summary=False)
     info = res.summary["image_depth"]
-    assert info["source"] == "sparse" and info["points_from"] == "triangulated"
+    assert info["source"] == "planes" and "planes" in info and info["points_from"] == "triangulated"
     assert info["points"] > 50 and info["targets"] > 100 and info["median_error_px"] < 1.0
     assert res.summary["inputs"] == "RGB + SfM points"
     assert (res.run.path / "image_depth" / "sparse" / "points3D.ply").is_file()

@@ -77,8 +77,8 @@ class ImageDepthConfig:
     folder); ``dense``: those and plane-sweep depth maps (the scene's ``mvs_depth_file_path``, else computed
     at the start); ``planes``: the sparse points and, at the pixels the 2D labels give a stuff class, where
     the ray meets the planes fitted to the sparse and plane-sweep points of that class
-    (:mod:`lift3d.sfm.planes`); ``none``: colours only;
-    ``auto``: the measured default (``sparse``)."""
+    (:mod:`lift3d.sfm.planes`); ``none``: colours only; ``auto``: the measured default (``planes`` in a
+    bounded scene, ``sparse`` in an unbounded one)."""
     rays_per_image: int = 32
     """Rays per image and step drawn among the pixels that have a depth target (besides the random rays;
     sparse points cover ~1 % of the pixels, so random rays would rarely meet one)."""

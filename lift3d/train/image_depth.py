@@ -85,11 +85,15 @@ def frames_without_depth(scene: Scene, frames: np.ndarray) -> np.ndarray:
     return np.asarray([int(i) for i in frames if scene.frames[int(i)].depth_path is None], np.int64)
 
 
-def resolve_source(source: str) -> str:
-    """``auto`` → the source measured best by default (docs/sfm.md, "Training with it")."""
+def resolve_source(source: str, scene: Scene | None = None) -> str:
+    """``auto`` → the source measured best by default (docs/sfm.md, "Training with it"): ``planes`` for a
+    bounded scene (rooms: measured there), ``sparse`` otherwise (the planes are not measured outdoors yet)."""
     if source not in SOURCES:
         raise InputError("--image_depth.source", f"unknown source {source!r} ({', '.join(SOURCES)})")
-    return "sparse" if source == "auto" else source
+    if source != "auto":
+        return source
+    bounded = scene is not None and scene.scene_box is not None and scene.scene_box.type == "bounded"
+    return "planes" if bounded else "sparse"
 
 
 def image_depth_targets(scene: Scene, frames: np.ndarray, cfg: ImageDepthConfig, cache: Path | None = None,
@@ -111,7 +115,7 @@ def image_depth_targets(scene: Scene, frames: np.ndarray, cfg: ImageDepthConfig,
     DepthTargets
         Possibly empty (source ``none``, every frame has a depth map, nothing could be triangulated).
     """
-    source = resolve_source(cfg.source)
+    source = resolve_source(cfg.source, scene)
     targets_for = frames_without_depth(scene, frames)
     info: dict[str, Any] = {"source": source, "requested": cfg.source, "warnings": []}
     if source == "none" or len(targets_for) == 0:
