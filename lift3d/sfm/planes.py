@@ -221,10 +221,10 @@ def fit_planes(points: np.ndarray, classes: np.ndarray, stuff_ids, threshold: fl
             crossings = 0 if sightlines is None else _crossings(sightlines, n, d, extent, threshold, margin)
             score = int(inl.sum()) - crossings
             if score >= min_points and (best is None or score > best[0]):
-                best = (score, n, d, inl, extent, crossings)
+                best = (score, n, d, inl, extent)
         if best is None:
             break
-        _, n, d, inl, (origin, basis, hull), crossings = best
+        _, n, d, inl, (origin, basis, hull) = best
         pts, pts_cls = left[inl], left_cls[inl]
         left, left_cls = left[~inl], left_cls[~inl]
         ids, counts = np.unique(pts_cls, return_counts=True)
@@ -254,12 +254,9 @@ def _ransac_planes(x: np.ndarray, threshold: float, iterations: int, rng: np.ran
         vertical = np.cross(up, along)
         n = np.concatenate([vertical, np.broadcast_to(up, (iterations, 3))])
         a = np.concatenate([a, c])
-    norm = np.linalg.norm(n, axis=1)
-    ok = norm > 1e-9
-    if not ok.any():
+    n, d = _unit_planes(n, a)
+    if not len(n):
         return []
-    n = n[ok] / norm[ok, None]
-    d = -np.einsum("ij,ij->i", n, a[ok])
     near = np.abs(x @ n.T + d) < threshold
     counts = near.sum(0)
     out, taken = [], np.zeros(len(x), bool)
@@ -309,10 +306,18 @@ def _crossings(sightlines, n: np.ndarray, d: float, extent, threshold: float, ma
     return int(np.all(p2 @ hull[:, :2].T + hull[:, 2] <= margin, axis=1).sum())
 
 
+def _unit_planes(n: np.ndarray, a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Planes with (unnormalised) normals ``n`` ``[K, 3]`` through points ``a`` ``[K, 3]`` as unit normals and
+    offsets ``d`` (``n · x + d = 0``); degenerate ones (zero normal: a repeated or collinear draw) dropped."""
+    norm = np.linalg.norm(n, axis=1)
+    ok = norm > 1e-9
+    n = n[ok] / norm[ok, None]
+    return n, -np.einsum("ij,ij->i", n, a[ok])
+
+
 def _least_squares_plane(x: np.ndarray, like: np.ndarray | None = None) -> tuple[np.ndarray, float]:
-    """Least-squares plane of ``x``; with ``like`` (a unit normal), that normal's orientation is kept and only
-    the offset fitted, except that a vertical ``like`` may turn about the vertical (``like`` must then be
-    horizontal or vertical with respect to the caller's up: the ``_ransac_plane`` candidates)."""
+    """Least-squares plane of ``x``; with ``like`` (a unit normal), that normal is kept and only the offset
+    fitted (the horizontal and vertical candidates of an ``up``-constrained fit stay so)."""
     c = x.mean(0)
     if like is None:
         n = np.linalg.svd(x - c, full_matrices=False)[2][2]
@@ -326,21 +331,18 @@ def _refined_up(x: np.ndarray, up: np.ndarray, threshold: float, min_points: int
     ``2 × min_points`` points (the cameras' mean image-up axis is only roughly up: cameras that all look one
     way and down tilt it by 10° and more)."""
     idx = rng.integers(0, len(x), size=(iterations, 3))
-    n = np.cross(x[idx[:, 1]] - x[idx[:, 0]], x[idx[:, 2]] - x[idx[:, 0]])
-    norm = np.linalg.norm(n, axis=1)
-    ok = norm > 1e-9
-    n = n[ok] / norm[ok, None]
-    n *= np.sign(n @ up)[:, None]
-    a = x[idx[ok, 0]]
+    n, d = _unit_planes(np.cross(x[idx[:, 1]] - x[idx[:, 0]], x[idx[:, 2]] - x[idx[:, 0]]), x[idx[:, 0]])
+    side = np.sign(n @ up)
+    n, d = n * side[:, None], d * side
     ok = n @ up > np.cos(np.radians(25))
     if not ok.any():
         return up
-    n, a = n[ok], a[ok]
-    counts = (np.abs(x @ n.T - np.einsum("pj,pj->p", n, a)) < threshold).sum(0)
+    n, d = n[ok], d[ok]
+    counts = (np.abs(x @ n.T + d) < threshold).sum(0)
     k = int(np.argmax(counts))
     if counts[k] < 2 * min_points:
         return up
-    inl = np.abs(x @ n[k] - n[k] @ a[k]) < threshold
+    inl = np.abs(x @ n[k] + d[k]) < threshold
     pts = x[inl]
     m = np.linalg.svd(pts - pts.mean(0), full_matrices=False)[2][2]
     return m if m @ up > 0 else -m

@@ -234,10 +234,9 @@ def _plane_rows(scene: Scene, sparse: SparsePoints, dense: DenseDepth, frames: n
         return empty, info
     diag = scene_diagonal(scene, sparse)
     labels = {int(i): scene.pseudo_labels(int(i)).semantic for i in frames}
-    seen = np.isin(sparse.obs_frame, list(labels))
     obs_class = np.zeros(len(sparse.obs_frame), np.int64)
     for i, sem in labels.items():
-        k = np.flatnonzero(seen & (sparse.obs_frame == i))
+        k = np.flatnonzero(sparse.obs_frame == i)
         h, w = sem.shape
         col = np.clip(np.floor(sparse.obs_uv[k, 0]).astype(np.int64), 0, w - 1)
         row = np.clip(np.floor(sparse.obs_uv[k, 1]).astype(np.int64), 0, h - 1)
@@ -248,7 +247,7 @@ def _plane_rows(scene: Scene, sparse: SparsePoints, dense: DenseDepth, frames: n
     for name, depth in zip(dense.frame_names, dense.depth):
         i = index[name]
         r, c = np.nonzero(np.asarray(depth) > 0)
-        if i not in labels or not len(r):
+        if not len(r):
             continue
         o, d = scene.cameras.rays(i, c, r)
         p = o + d * (np.asarray(depth)[r, c] / (d @ scene.cameras.c2w_opencv[i][:3, 2]))[:, None]
@@ -273,9 +272,7 @@ def _plane_rows(scene: Scene, sparse: SparsePoints, dense: DenseDepth, frames: n
     out = []
     for i in targets_for:
         i = int(i)
-        sem = labels.get(i)
-        if sem is None:
-            sem = scene.pseudo_labels(i).semantic
+        sem = labels[i]  # targets_for is a subset of the training frames
         h, w = sem.shape
         r, c = np.mgrid[stride // 2:h:stride, stride // 2:w:stride]
         r, c = r.ravel(), c.ravel()
