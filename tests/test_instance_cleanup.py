@@ -98,3 +98,41 @@ def test_crumbs_fold_into_their_neighbour_and_counts_are_reported():
                                               segments_of=lambda f: np.zeros((H, W), np.int64), link_radius=0.1,
                                               crumb_points=0)
     assert keep0.all() and stats0["instances_after"] == 3
+
+
+def test_an_instance_the_field_is_unsure_of_folds_into_the_surface_it_lies_on():
+    # A patch of a thing class painted on a wall (what one spurious 2D segment leaves in the field: the wall
+    # keeps much of its class probability) folds into the wall; a confident object of the same size stays.
+    rng = np.random.default_rng(4)
+    wall = _plate(-2, 2, 4000, rng, y=1.0)
+    patch = _plate(-0.2, 0.2, 200, rng, y=1.0)
+    obj = _plate(-1.0, -0.6, 200, rng, y=0.0)
+    xyz = np.concatenate([wall, patch, obj])
+    semantic = np.array([1] * 4000 + [9] * 200 + [7] * 200)
+    instance = np.array([0] * 4000 + [1] * 200 + [2] * 200)
+    confidence = np.concatenate([np.full(4000, 0.9), np.full(200, 0.62), np.full(200, 0.85)])
+    cams = _views()
+    kwargs = dict(cameras=cams, frames=np.arange(3), segments_of=lambda f: np.zeros((H, W), np.int64),
+                  link_radius=0.1, crumb_points=10, confidence=confidence)
+    sem, inst, keep, stats = clean_instances(xyz, xyz, semantic, instance, min_confidence=0.7, **kwargs)
+    assert keep.all()
+    assert (inst[4000:4200] == 0).all() and (sem[4000:4200] == 1).all(), "the unsure patch becomes wall"
+    assert (inst[4200:] == 1).all() and (sem[4200:] == 7).all(), "the confident object stays, renumbered 1"
+    assert stats["unsure"] == 1 and stats["instances_after"] == 1
+    _, inst_off, _, stats_off = clean_instances(xyz, xyz, semantic, instance, min_confidence=0.0, **kwargs)
+    assert stats_off["unsure"] == 0 and stats_off["instances_after"] == 2
+
+
+def test_votes_from_a_subset_of_a_large_cloud_agree_with_all_points():
+    rng = np.random.default_rng(5)
+    xyz = np.concatenate([_plate(-1.0, -0.3, 8000, rng), _plate(-0.25, 0.2, 6000, rng), _plate(-2, 2, 20000, rng,
+                                                                                               y=1.0)])
+    instance = np.array([1] * 8000 + [2] * 6000 + [0] * 20000)
+    cams = _views()
+    maps = _segment_maps(cams, [(11, -1.0, 0.2)])
+    full = segment_votes(xyz, instance, cams, np.arange(3), lambda f: maps[f], max_points=0)
+    sub = segment_votes(xyz, instance, cams, np.arange(3), lambda f: maps[f], max_points=5000)
+    assert sub[:, 4].sum() < full[:, 4].sum() / 3, "the subset votes with fewer points"
+    for votes in (full, sub):
+        merged, n = merge_fragments(instance, np.array([0, 7, 7]), votes, min_views=2)
+        assert n == 1 and (merged[:14000] == 1).all()

@@ -96,6 +96,9 @@ def add_parser(subparsers, verb: str) -> argparse.ArgumentParser:
     g.add_argument("--crumb-points", type=int, default=None, metavar="N",
                    help="instances under N points fold into their neighbour (default: the points of a patch one "
                         "instance link radius on a side; 0 = keep all)")
+    g.add_argument("--min-instance-confidence", type=float, default=None, metavar="P",
+                   help="instances whose points' mean class probability is below P fold into their surroundings "
+                        "(default: 0.7; 0 = keep all)")
     m = p.add_argument_group("mesh")
     m.add_argument("--resolution", type=int, default=256, metavar="R", help="grid cells per axis (default: 256)")
     m.add_argument("--split-instances", action="store_true", help="also write instances/<id>_<class>.ply")
@@ -121,6 +124,8 @@ def run(args: argparse.Namespace) -> int:
         raise InputError("--min-points", f"must be >= 0, got {args.min_points}")
     if args.crumb_points is not None and args.crumb_points < 0:
         raise InputError("--crumb-points", f"must be >= 0, got {args.crumb_points}")
+    instance_confidence = {} if args.min_instance_confidence is None else \
+        {"min_instance_confidence": args.min_instance_confidence}
     if not 8 <= args.resolution <= 1024:
         raise InputError("--resolution", f"must be between 8 and 1024, got {args.resolution}")
     obb = None
@@ -149,7 +154,7 @@ def run(args: argparse.Namespace) -> int:
         source=args.source, num_points=args.num_points, frame=args.frame, density_threshold=args.density_threshold,
         refine_surface=args.refine_surface, min_confidence=args.min_confidence, voxel_size=args.voxel_size,
         remove_outliers=args.remove_outliers, std_ratio=args.std_ratio, obb=obb, min_points=args.min_points,
-        merge_fragments=args.merge_fragments, crumb_points=args.crumb_points, device=args.device,
+        merge_fragments=args.merge_fragments, crumb_points=args.crumb_points, **instance_confidence, device=args.device,
     )
     print(format_summary(summary))
     return 0

@@ -38,9 +38,15 @@ import numpy as np
 from lift3d.export.instances import _contiguous_ids, _relabel_fragments
 
 
+#: Points of the vote cloud (a random subset of the export when it is larger). 128 × 128 views see a few points
+#: per pixel at this size, so larger exports only repeat the same votes (projecting 1M points into 24 views was
+#: most of the clean-up's time).
+VOTE_POINTS = 200_000
+
+
 def segment_votes(xyz_world: np.ndarray, instance: np.ndarray, cameras, frames: np.ndarray,
                   segments_of: Callable[[int], np.ndarray], *, max_views: int = 24, min_points: int = 5,
-                  depth_tolerance: float = 0.03) -> np.ndarray:
+                  depth_tolerance: float = 0.03, max_points: int = VOTE_POINTS, seed: int = 0) -> np.ndarray:
     """What 2D segment each instance's visible points land on, view by view.
 
     Parameters
@@ -59,6 +65,8 @@ def segment_votes(xyz_world: np.ndarray, instance: np.ndarray, cameras, frames: 
         An instance needs this many visible points in a view to vote there.
     depth_tolerance : float
         Relative depth margin of the visibility test.
+    max_points : int
+        Vote with a random subset of this many points (fixed ``seed``) when there are more; 0 = all.
 
     Returns
     -------
@@ -73,6 +81,9 @@ def segment_votes(xyz_world: np.ndarray, instance: np.ndarray, cameras, frames: 
     xyz_world = np.asarray(xyz_world, np.float64)
     instance = np.asarray(instance, np.int64)
     n_inst = int(instance.max(initial=0)) + 1
+    if 0 < max_points < len(xyz_world):
+        pick = np.sort(np.random.default_rng(seed).choice(len(xyz_world), max_points, replace=False))
+        xyz_world, instance = xyz_world[pick], instance[pick]
     rows = []
     for f in frames:
         f = int(f)
@@ -184,8 +195,9 @@ def count_instances(instance: np.ndarray) -> int:
 def clean_instances(xyz: np.ndarray, xyz_world: np.ndarray, semantic: np.ndarray, instance: np.ndarray, *,
                     cameras, frames: np.ndarray, segments_of: Callable[[int], np.ndarray], link_radius: float,
                     crumb_points: int, merge: bool = True, max_views: int = 24, min_share: float = 0.5,
-                    min_views: int = 2) -> tuple[np.ndarray, np.ndarray, np.ndarray, dict[str, Any]]:
-    """Merge fragments, then fold crumbs (see the module docstring).
+                    min_views: int = 2, confidence: np.ndarray | None = None,
+                    min_confidence: float = 0.0) -> tuple[np.ndarray, np.ndarray, np.ndarray, dict[str, Any]]:
+    """Merge fragments, then fold crumbs and unsure instances (see the module docstring).
 
     Parameters
     ----------
@@ -203,6 +215,11 @@ def clean_instances(xyz: np.ndarray, xyz_world: np.ndarray, semantic: np.ndarray
         Instances with fewer points are crumbs (0 = keep every instance).
     merge : bool
         Merge fragments (step 1); off, only crumbs are folded.
+    confidence : np.ndarray, optional
+        ``[N]`` probability of each point's class; needed when ``min_confidence`` > 0.
+    min_confidence : float
+        Instances (after merging) whose points' mean class probability is below this fold like crumbs
+        (0 = off).
 
     Returns
     -------
@@ -226,13 +243,25 @@ def clean_instances(xyz: np.ndarray, xyz_world: np.ndarray, semantic: np.ndarray
     component = np.where(instance > 0, instance - 1, -1)
     crumb_stats = {"fragments_relabelled": 0, "fragment_points_relabelled": 0, "fragments_dropped": 0,
                    "fragment_points_dropped": 0}
-    if crumb_points > 0 and (component >= 0).any():
-        sizes = np.bincount(component[component >= 0])
-        in_crumb = np.zeros(len(component), bool)
-        in_crumb[component >= 0] = sizes[component[component >= 0]] < crumb_points
-        if in_crumb.any():
-            _relabel_fragments(np.asarray(xyz, np.float64), semantic, component, in_crumb, keep, 4.0 * link_radius,
-                               crumb_stats)
+    thing = component >= 0
+    in_crumb = np.zeros(len(component), bool)
+    if crumb_points > 0 and thing.any():
+        sizes = np.bincount(component[thing])
+        in_crumb[thing] = sizes[component[thing]] < crumb_points
+    stats["min_confidence"] = float(min_confidence)
+    stats["unsure"] = 0
+    if min_confidence > 0 and thing.any():
+        if confidence is None:
+            raise ValueError("clean_instances: min_confidence > 0 needs the points' confidence")
+        sizes = np.bincount(component[thing])
+        mean_conf = np.bincount(component[thing], weights=np.asarray(confidence, np.float64)[thing]) / \
+            np.maximum(sizes, 1)
+        unsure = (mean_conf < min_confidence) & (sizes >= max(crumb_points, 1))
+        stats["unsure"] = int(unsure.sum())
+        in_crumb[thing] |= unsure[component[thing]]
+    if in_crumb.any():
+        _relabel_fragments(np.asarray(xyz, np.float64), semantic, component, in_crumb, keep, 4.0 * link_radius,
+                           crumb_stats)
     stats.update(crumbs_folded=crumb_stats["fragments_relabelled"], crumbs_dropped=crumb_stats["fragments_dropped"],
                  crumb_points_moved=crumb_stats["fragment_points_relabelled"],
                  crumb_points_dropped=crumb_stats["fragment_points_dropped"])
