@@ -179,6 +179,16 @@ def _relabel_fragments(xyz, semantic, component, in_fragment, keep, max_distance
 
     anchors = np.flatnonzero(~in_fragment)
     frag_points = np.flatnonzero(in_fragment)
+    # Only anchors near a fragment can vote: keep those in the 27 cells (of side max_distance) around the
+    # fragments' cells, so the KD-tree holds the neighbourhood of a few crumbs, not a million points.
+    cell = np.floor(xyz / max_distance).astype(np.int64)
+    lo = cell.min(0) - 1
+    dims = cell.max(0) - lo + 2
+    key = ((cell[:, 0] - lo[0]) * dims[1] + (cell[:, 1] - lo[1])) * dims[2] + (cell[:, 2] - lo[2])
+    near = np.unique(key[frag_points])
+    near = np.unique((near[:, None] + ((np.arange(-1, 2)[:, None, None] * dims[1] + np.arange(-1, 2)[None, :, None])
+                                       * dims[2] + np.arange(-1, 2)[None, None, :]).reshape(1, -1)).ravel())
+    anchors = anchors[np.isin(key[anchors], near)]
     if len(anchors) == 0:
         keep[frag_points] = False
         stats["fragments_dropped"] += int(len(np.unique(component[frag_points])))
