@@ -136,3 +136,18 @@ def test_votes_from_a_subset_of_a_large_cloud_agree_with_all_points():
     for votes in (full, sub):
         merged, n = merge_fragments(instance, np.array([0, 7, 7]), votes, min_views=2)
         assert n == 1 and (merged[:14000] == 1).all()
+
+
+def test_unsure_instances_with_nothing_sure_around_them_stay():
+    # An undertrained field is unsure of everything: its instances have no sure neighbour to fold into and
+    # must not be dropped (the export would be empty).
+    rng = np.random.default_rng(6)
+    xyz = np.concatenate([_plate(-1.0, -0.1, 300, rng), _plate(0.1, 1.0, 300, rng)])
+    semantic = np.array([7] * 300 + [8] * 300)
+    instance = np.array([1] * 300 + [2] * 300)
+    sem, inst, keep, stats = clean_instances(
+        xyz, xyz, semantic, instance, cameras=_views(), frames=np.arange(3),
+        segments_of=lambda f: np.zeros((H, W), np.int64), link_radius=0.1, crumb_points=10,
+        confidence=np.full(600, 0.3), min_confidence=0.7)
+    assert keep.all() and stats["unsure"] == 2 and stats["instances_after"] == 2
+    assert (sem == semantic).all()

@@ -350,6 +350,9 @@ def test_eval_writes_metrics_json_with_every_key(trained, evaluated):
     p3 = m["points3d"]
     assert set(p3) >= {"miou", "pq", "chamfer", "fscore", "accuracy", "completeness", "tau", "source"}
     assert p3["n_gt"] == len(scene.gt_points()["xyz"]) and 0 < p3["n_pred"] <= 20000
+    gt = scene.gt_points()
+    objects = {(int(c), int(i)) for c, i in zip(gt["semantic"], gt["instance"]) if i and c in scene.thing_ids}
+    assert p3["n_gt_objects"] == len(objects) and p3["n_gt_objects"] >= p3["n_instances"]
     assert m["render_ms_per_2048_rays"] > 0
     t = m["render_timing"]
     assert len(t["all_ms"]) == 10 and t["warmup"] == 2 and t["n_rays"] == 2048

@@ -372,7 +372,8 @@ def points3d_block(loaded: LoadedRun, scene: Scene, num_points: int = 200_000, p
         rq_strict`` (``min_area`` 0), ``accuracy completeness chamfer`` (world units),
         ``precision recall fscore`` at ``tau`` (1 % of the GT bounding-box diagonal), ``tau``, ``n_pred``,
         ``n_gt``, ``instance_recall`` (share of GT objects with ≥ 500 points found as one instance with point
-        IoU > 0.5) and ``n_instances``, ``n_pred_instances`` (distinct thing instances among the scored
+        IoU > 0.5) and ``n_instances``, ``n_gt_objects`` (every GT thing instance, however small),
+        ``n_pred_instances`` (distinct thing instances among the scored
         points: what the export offers), ``source`` (``export.<source>``: the export's points from ``source``,
         by default the export's default), ``num_points``.
     """
@@ -392,6 +393,10 @@ def points3d_block(loaded: LoadedRun, scene: Scene, num_points: int = 200_000, p
     # scored (n_instances): an export that splits furniture into pieces finds objects but offers too many.
     pred_inst = np.asarray(pts.instance)
     block["n_pred_instances"] = int(len(np.unique(pred_inst[pred_inst > 0])))
+    # Every GT object (n_instances counts only those with >= 500 GT points, the ones instance_recall scores).
+    gt_sem, gt_inst = np.asarray(gt["semantic"]).astype(np.int64), np.asarray(gt["instance"]).astype(np.int64)
+    on_thing = np.isin(gt_sem, list(scene.thing_ids)) & (gt_inst != 0)
+    block["n_gt_objects"] = int(len(np.unique(np.stack([gt_sem[on_thing], gt_inst[on_thing]], 1), axis=0)))
     block.update(source=f"export.{source}", num_points=int(num_points))
     return block
 

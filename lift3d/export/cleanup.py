@@ -259,9 +259,13 @@ def clean_instances(xyz: np.ndarray, xyz_world: np.ndarray, semantic: np.ndarray
         unsure = (mean_conf < min_confidence) & (sizes >= max(crumb_points, 1))
         stats["unsure"] = int(unsure.sum())
         in_crumb[thing] |= unsure[component[thing]]
+        # An unsure instance with nothing sure around it (a field that is unsure everywhere) stays.
+        stay = set(np.flatnonzero(unsure).tolist())
+    else:
+        stay = set()
     if in_crumb.any():
         _relabel_fragments(np.asarray(xyz, np.float64), semantic, component, in_crumb, keep, 4.0 * link_radius,
-                           crumb_stats)
+                           crumb_stats, stay_when_isolated=stay)
     stats.update(crumbs_folded=crumb_stats["fragments_relabelled"], crumbs_dropped=crumb_stats["fragments_dropped"],
                  crumb_points_moved=crumb_stats["fragment_points_relabelled"],
                  crumb_points_dropped=crumb_stats["fragment_points_dropped"])

@@ -172,9 +172,11 @@ def assign_instances(xyz: np.ndarray, semantic: np.ndarray, channel: np.ndarray,
     return InstanceAssignment(semantic=semantic, instance=instance.astype(np.int32), keep=keep, stats=stats)
 
 
-def _relabel_fragments(xyz, semantic, component, in_fragment, keep, max_distance, stats) -> None:
+def _relabel_fragments(xyz, semantic, component, in_fragment, keep, max_distance, stats,
+                       stay_when_isolated=()) -> None:
     """Give every fragment the majority (class, component) of its surroundings, in place; drop isolated
-    fragments. Majority over all neighbour votes of the fragment's points, so a fragment stays one piece."""
+    fragments, except those in ``stay_when_isolated`` (component ids), which then stay as they are. Majority
+    over all neighbour votes of the fragment's points, so a fragment stays one piece."""
     from scipy.spatial import cKDTree
 
     anchors = np.flatnonzero(~in_fragment)
@@ -190,9 +192,10 @@ def _relabel_fragments(xyz, semantic, component, in_fragment, keep, max_distance
                                        * dims[2] + np.arange(-1, 2)[None, None, :]).reshape(1, -1)).ravel())
     anchors = anchors[np.isin(key[anchors], near)]
     if len(anchors) == 0:
-        keep[frag_points] = False
-        stats["fragments_dropped"] += int(len(np.unique(component[frag_points])))
-        stats["fragment_points_dropped"] += int(len(frag_points))
+        drop = frag_points[~np.isin(component[frag_points], np.asarray(list(stay_when_isolated), np.int64))]
+        keep[drop] = False
+        stats["fragments_dropped"] += int(len(np.unique(component[drop])))
+        stats["fragment_points_dropped"] += int(len(drop))
         return
     k = min(FRAGMENT_NEIGHBOURS, len(anchors))
     dist, idx = cKDTree(xyz[anchors]).query(xyz[frag_points], k=k, distance_upper_bound=max_distance, workers=-1)
@@ -203,6 +206,8 @@ def _relabel_fragments(xyz, semantic, component, in_fragment, keep, max_distance
         valid = np.isfinite(dist[rows])
         members = frag_points[rows]
         if not valid.any():
+            if frag in stay_when_isolated:
+                continue
             keep[members] = False
             stats["fragments_dropped"] += 1
             stats["fragment_points_dropped"] += int(len(members))
