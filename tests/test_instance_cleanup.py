@@ -151,3 +151,18 @@ def test_unsure_instances_with_nothing_sure_around_them_stay():
         confidence=np.full(600, 0.3), min_confidence=0.7)
     assert keep.all() and stats["unsure"] == 2 and stats["instances_after"] == 2
     assert (sem == semantic).all()
+
+
+def test_a_fragment_whose_labels_spill_onto_stuff_still_merges():
+    # Fragment 2 of the object has more of its points on the floor beside it (stuff pixels in 2D, where the
+    # field's label spilled) than on the object: of its points on 2D *thing* segments, the object's segment
+    # holds the majority, so it merges.
+    rng = np.random.default_rng(7)
+    xyz = np.concatenate([_plate(-1.0, -0.3, 800, rng), _plate(-0.25, 0.2, 300, rng), _plate(0.2, 0.9, 500, rng),
+                          _plate(-2, 2, 3000, rng, y=1.0)])
+    instance = np.array([1] * 800 + [2] * 800 + [0] * 3000)
+    cams = _views()
+    maps = _segment_maps(cams, [(11, -1.0, 0.2)])
+    votes = segment_votes(xyz, instance, cams, np.arange(3), lambda f: maps[f])
+    merged, n = merge_fragments(instance, np.array([0, 7, 7]), votes, min_views=2)
+    assert n == 1 and (merged[:1600] == 1).all()

@@ -10,8 +10,10 @@ fix that, using the views the field was trained from:
    point within one pixel by more than ``depth_tolerance``), and each instance's visible points vote for
    the 2D pseudo-label segment they land on. Two instances of the same class are fragments of one object
    when, in the views that see both (at least ``min_views``), the same 2D segment holds the majority of each
-   in at least ``min_share`` of those views. A 2D segmenter that merges two touching objects does so in some
-   frames, not in most, so neighbours of one class stay apart. Groups are joined transitively.
+   one's points on 2D thing segments in at least ``min_share`` of those views (points on stuff pixels do not
+   count: a fragment whose label spilled onto the floor around it still belongs to its object). A 2D
+   segmenter that merges two touching objects does so in some frames, not in most, so neighbours of one
+   class stay apart. Groups are joined transitively.
 2. **Crumbs fold.** An instance with fewer than ``min_points`` points takes the majority (class, instance) of
    the points around it (within ``4 × link_radius``, outside crumbs) and disappears into it; with no such
    point it is dropped.
@@ -147,8 +149,15 @@ def merge_fragments(instance: np.ndarray, instance_class: np.ndarray, votes: np.
             a = parent[a]
         return a
 
-    # The segment holding the majority of an instance's visible points in a view (if one does).
-    major = votes[2 * votes[:, 3] > votes[:, 4]] if len(votes) else votes
+    # The segment holding the majority of an instance's visible points on thing segments in a view (if one
+    # does); points on stuff or void pixels abstain (a fragment's label may spill onto the floor around it).
+    if len(votes):
+        key = votes[:, 0] * (int(votes[:, 1].max()) + 1) + votes[:, 1]
+        _, inv = np.unique(key, return_inverse=True)
+        on_things = np.bincount(inv.ravel(), weights=votes[:, 3])[inv.ravel()]
+        major = votes[2 * votes[:, 3] > on_things]
+    else:
+        major = votes
     co: dict[tuple[int, int], int] = {}
     same: dict[tuple[int, int], int] = {}
     for f in np.unique(major[:, 0]) if len(major) else []:
