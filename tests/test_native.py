@@ -124,3 +124,25 @@ def test_without_a_compiler_lift3d_warns_once_and_uses_torch(monkeypatch):
         assert torch.allclose(grid.encode(u), grid.encode_torch(u))
     notes = [str(w.message) for w in caught if "C++" in str(w.message)]
     assert len(notes) == 1 and "\n" not in notes[0] and "pure-torch" in notes[0]
+
+
+def test_the_same_source_from_two_checkouts_builds_from_one_path(monkeypatch, tmp_path):
+    # The build records its sources' paths: two clones or worktrees of lift3d alternating would rebuild the
+    # kernels (9-12 s) on every switch if each compiled its own file.
+    from torch.utils import cpp_extension
+
+    seen = []
+    monkeypatch.setattr(cpp_extension, "load", lambda **kw: seen.append((kw["sources"], kw["build_directory"])))
+    monkeypatch.setenv("LIFT3D_CACHE_DIR", str(tmp_path / "cache"))
+    text = native._SOURCE.read_bytes()
+    for checkout in ("a", "b"):
+        src = tmp_path / checkout / "native.cpp"
+        src.parent.mkdir()
+        src.write_bytes(text)
+        monkeypatch.setattr(native, "_SOURCE", src)
+        monkeypatch.setattr(native, "_module", None)
+        monkeypatch.setattr(native, "_failed", None)
+        native.load()
+    assert len(seen) == 2 and seen[0] == seen[1]
+    (source,), build = seen[0]
+    assert source.startswith(build) and open(source, "rb").read() == text
