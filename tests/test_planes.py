@@ -53,6 +53,28 @@ def test_box_room_gives_its_floor_and_walls_and_sight_lines_reject_a_slab_of_obj
     assert any(abs(-d - 0.3) < 0.03 for n, d in zip(blind.normal, blind.offset) if abs(n @ UP) > 0.99)
 
 
+def test_a_sparsely_seen_wall_is_found_among_horizontal_clutter_at_its_points_heights():
+    # The wall x = 3 has points at three heights only, and at each height clutter the labels call wall
+    # (shelves, pictures) makes a horizontal candidate with more points than the wall. Those slabs are crossed
+    # by the sight lines to the floor; the wall is not and must still be found: candidates are distinct from
+    # each kept one, not from their union (which covers every point of the wall).
+    rng = np.random.default_rng(3)
+    floor = np.c_[rng.uniform(-2.8, 2.8, 400), rng.uniform(-1.8, 1.8, 400), np.zeros(400)]
+    heights = np.repeat([0.8, 1.4, 2.0], 8)
+    wall = np.c_[np.full(24, 3.0), rng.uniform(-1.8, 1.8, 24), heights]
+    clutter = np.c_[rng.uniform(-2.5, 2.5, 90), rng.uniform(-1.5, 1.5, 90), np.repeat([0.8, 1.4, 2.0], 30)]
+    pts = np.r_[floor, wall, clutter] + rng.normal(0, 0.005, (514, 3))
+    cls = np.r_[np.full(400, FLOOR), np.full(114, WALL)]
+    cams = np.c_[rng.uniform(-1.5, 1.5, 8), rng.uniform(-1, 1, 8), np.full(8, 2.5)]
+    seen = np.r_[floor, wall]
+    sight = (np.repeat(cams, len(seen), 0), np.tile(seen, (len(cams), 1)))
+    planes = fit_planes(pts, cls, [WALL, FLOOR], threshold=0.05, min_points=8, margin=0.3, up=UP, sightlines=sight)
+    found = [(n, d) for n, d in zip(planes.normal, planes.offset) if abs(n[0]) > 0.99]
+    assert len(found) == 1 and abs(abs(found[0][1]) - 3.0) < 0.03
+    assert not any(abs(-d - h) < 0.05 for n, d in zip(planes.normal, planes.offset) if abs(n @ UP) > 0.99
+                   for h in (0.8, 1.4, 2.0))
+
+
 def test_a_plane_reaches_only_a_margin_beyond_its_points():
     rng = np.random.default_rng(1)
     pts = np.c_[rng.uniform(0, 1, 50), rng.uniform(0, 1, 50), np.zeros(50)]

@@ -90,7 +90,7 @@ class ImageDepthConfig:
     """``planes``: RANSAC inlier distance, as a fraction of the scene's diagonal."""
     plane_min_points: int = 8
     """``planes``: fewest points (after thinning) that make a plane."""
-    plane_min_share: float = 0.01
+    plane_min_share: float = 0.005
     """``planes``: a plane also needs this share of the stuff points (after thinning)."""
     plane_voxel: float = 0.01
     """``planes``: points are thinned to one per cell of this size (fraction of the diagonal) and class

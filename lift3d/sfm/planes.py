@@ -157,7 +157,7 @@ def point_classes(obs_point: np.ndarray, obs_class: np.ndarray, num_points: int,
 def fit_planes(points: np.ndarray, classes: np.ndarray, stuff_ids, threshold: float, min_points: int = 15,
                max_planes: int = 24, iterations: int = 500, margin: float = 0.0, min_class_share: float = 0.25,
                up: np.ndarray | None = None, sightlines: tuple[np.ndarray, np.ndarray] | None = None,
-               candidates: int = 16, seed: int = 0) -> StuffPlanes:
+               candidates: int = 64, max_crossing_share: float = 0.2, seed: int = 0) -> StuffPlanes:
     """Sequential RANSAC planes of the stuff classes' points (see the module docstring).
 
     The points of all stuff classes are fitted together and each plane takes the classes of its inliers: fitted
@@ -189,11 +189,16 @@ def fit_planes(points: np.ndarray, classes: np.ndarray, stuff_ids, threshold: fl
         direction is first refined to the normal of the largest plane within 25° of it.
     sightlines : (np.ndarray, np.ndarray), optional
         ``[M, 3]`` camera centres and ``[M, 3]`` the points they see (every observation, things too). A
-        plane that sight lines cross inside its extent is contradicted by the views: of the ``candidates``
-        best RANSAC planes the one with most inliers minus crossings wins. Without this, objects' points
-        the labels call floor make horizontal slabs above the floor, which floor pixels' rays meet first.
+        plane that sight lines cross inside its extent is contradicted by the views. Of the ``candidates``
+        best RANSAC planes, those crossed by more than ``max_crossing_share`` of the sight lines that end on
+        them are dropped, and the one with most inliers × (1 − that share) wins. Without this, objects'
+        points the labels call floor make horizontal slabs above the floor, which floor pixels' rays meet
+        first. (A share, not a count: points are thinned before fitting, sight lines are not.)
     candidates : int
-        RANSAC planes scored against the sight lines per plane found.
+        RANSAC planes (distinct from each other) scored against the sight lines per plane found.
+    max_crossing_share : float
+        Most sight lines crossing a plane, as a share of those ending on it. On indoor tuning scenes real
+        walls had up to 0.12 (sight lines to wrong plane-sweep depths behind them) and false planes from 0.23.
     seed : int
         RANSAC's random draws (the result is deterministic for a seed).
     """
@@ -209,7 +214,8 @@ def fit_planes(points: np.ndarray, classes: np.ndarray, stuff_ids, threshold: fl
         if len(left) < min_points:
             break
         best = None
-        for n, d in _ransac_planes(left, threshold, iterations, rng, up, candidates if sightlines else 1):
+        for n, d in _ransac_planes(left, threshold, iterations, rng, up, candidates if sightlines else 1,
+                                     min_points):
             inl = np.abs(left @ n + d) < threshold
             if inl.sum() < min_points:
                 continue
@@ -218,8 +224,15 @@ def fit_planes(points: np.ndarray, classes: np.ndarray, stuff_ids, threshold: fl
             extent = _extent(left[inl], n, threshold)
             if extent is None:
                 continue
-            crossings = 0 if sightlines is None else _crossings(sightlines, n, d, extent, threshold, margin)
-            score = int(inl.sum()) - crossings
+            score = float(inl.sum())
+            if sightlines is not None:
+                # Crossings and support are both counted in sight lines (every observation, not thinned), so
+                # their ratio is the share of the views that contradict the plane; scaled to inliers, the
+                # score stays comparable with min_points however densely the points were thinned.
+                crossings, support = _crossings(sightlines, n, d, extent, threshold, margin)
+                if crossings > max_crossing_share * support:
+                    continue
+                score *= 1.0 - crossings / max(support, 1)
             if score >= min_points and (best is None or score > best[0]):
                 best = (score, n, d, inl, extent)
         if best is None:
@@ -241,9 +254,10 @@ def fit_planes(points: np.ndarray, classes: np.ndarray, stuff_ids, threshold: fl
 
 
 def _ransac_planes(x: np.ndarray, threshold: float, iterations: int, rng: np.random.Generator,
-                   up: np.ndarray | None = None, keep: int = 1) -> list[tuple[np.ndarray, float]]:
-    """The ``keep`` planes (distinct) that most of ``x`` lie within ``threshold`` of, among planes through 3
-    random points (with ``up``: horizontal planes through one point and vertical ones through two)."""
+                   up: np.ndarray | None = None, keep: int = 1, min_count: int = 1) -> list[tuple[np.ndarray, float]]:
+    """The ``keep`` planes (distinct, each with at least ``min_count`` of ``x`` within ``threshold``) that most
+    of ``x`` lie within ``threshold`` of, among planes through 3 random points (with ``up``: horizontal planes
+    through one point and vertical ones through two)."""
     idx = rng.integers(0, len(x), size=(iterations, 3))
     a, b, c = x[idx[:, 0]], x[idx[:, 1]], x[idx[:, 2]]
     if up is None:
@@ -259,14 +273,15 @@ def _ransac_planes(x: np.ndarray, threshold: float, iterations: int, rng: np.ran
         return []
     near = np.abs(x @ n.T + d) < threshold
     counts = near.sum(0)
-    out, taken = [], np.zeros(len(x), bool)
+    out, kept = [], []
     for k in np.argsort(-counts, kind="stable"):
-        if len(out) == keep or counts[k] == 0:
+        if len(out) == keep or counts[k] < max(min_count, 1):
             break
-        # distinct: most of its inliers are not those of a plane already kept
-        if (near[:, k] & taken).sum() > 0.5 * counts[k]:
+        # distinct: most of its inliers are not those of any one plane already kept. (Not of their union: a
+        # few horizontal slabs through a wall's points at different heights together cover that wall.)
+        if any((near[:, k] & near[:, j]).sum() > 0.5 * counts[k] for j in kept):
             continue
-        taken |= near[:, k]
+        kept.append(k)
         out.append((n[k], float(d[k])))
     return out
 
@@ -290,20 +305,26 @@ def _extent(pts: np.ndarray, n: np.ndarray, threshold: float):
         return None
 
 
-def _crossings(sightlines, n: np.ndarray, d: float, extent, threshold: float, margin: float) -> int:
-    """How many sight lines (camera → seen point) pass through the plane inside its extent, their point more
-    than ``threshold`` beyond it."""
+def _crossings(sightlines, n: np.ndarray, d: float, extent, threshold: float, margin: float) -> tuple[int, int]:
+    """``(crossings, support)``: how many sight lines (camera → seen point) pass through the plane inside its
+    extent, their point more than ``threshold`` beyond it, and how many end on it (point within
+    ``threshold``, inside the extent)."""
     cam, pt = sightlines
     sc, sp = cam @ n + d, pt @ n + d
+    origin, basis, hull = extent
+
+    def inside(x: np.ndarray) -> int:
+        p2 = (x - origin) @ basis.T
+        return int(np.all(p2 @ hull[:, :2].T + hull[:, 2] <= margin, axis=1).sum())
+
+    on = np.abs(sp) < threshold
+    support = inside(pt[on]) if on.any() else 0
     cross = (np.sign(sc) != np.sign(sp)) & (np.abs(sp) > threshold) & (np.abs(sc) > 0)
     if not cross.any():
-        return 0
+        return 0, support
     c, p = cam[cross], pt[cross]
     f = (sc[cross] / (sc[cross] - sp[cross]))[:, None]
-    hit = c + f * (p - c)
-    origin, basis, hull = extent
-    p2 = (hit - origin) @ basis.T
-    return int(np.all(p2 @ hull[:, :2].T + hull[:, 2] <= margin, axis=1).sum())
+    return inside(c + f * (p - c)), support
 
 
 def _unit_planes(n: np.ndarray, a: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
