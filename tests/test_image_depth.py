@@ -130,6 +130,32 @@ def test_target_rays_end_at_the_points_and_carry_their_sigma(room):
     assert batch.rgb.shape[0] == batch.origins.shape[0] == batch.semantic.shape[0]
 
 
+def test_point_share_draws_that_share_of_target_rays_among_the_points(room):
+    # 5 point targets per frame beside 200 dense ones (as plane targets outnumber points): uniformly drawn,
+    # points get ~2 % of the target rays; with point_share 0.5, half of them.
+    import dataclasses
+
+    scene = load_scene(room)
+    frames = scene.split("train")
+    pts = image_depth_targets(scene, frames, ImageDepthConfig(source="sparse"))
+    rng = np.random.default_rng(0)
+    w, h = int(scene.cameras.width[0]), int(scene.cameras.height[0])
+    f = np.repeat(pts.frame[np.unique(pts.frame, return_index=True)[1]], 200)
+    dense = dataclasses.replace(pts, frame=np.r_[pts.frame, f], u=np.r_[pts.u, rng.uniform(0, w - 1, len(f))].astype(np.float32),
+                                v=np.r_[pts.v, rng.uniform(0, h - 1, len(f))].astype(np.float32),
+                                z=np.r_[pts.z, np.full(len(f), 3.0, np.float32)], sigma=np.r_[pts.sigma, np.full(len(f), 0.5, np.float32)],
+                                dense=np.r_[np.zeros(len(pts), bool), np.ones(len(f), bool)])
+    norm, _ = infer_normalization(scene)
+    rays = RayGenerator(scene.cameras, norm.c2w_normalized(scene.cameras.c2w))
+    data = TrainingData(scene, frames, rays, progress=False, targets=dense, target_scale=norm.scale)
+    for share, lo, hi in ((0.0, 0.0, 0.1), (0.5, 0.5, 0.5)):
+        batch = data.sample(len(frames), 4, 0, torch.Generator().manual_seed(1), target_rays_per_image=40,
+                            point_share=share)
+        has = batch.depth_sigma > 0
+        is_point = batch.depth_sigma[has] < 0.1 * norm.scale  # points carry 2 cm, the fake dense ones 50 cm
+        assert int(has.sum()) == 3 * 40 and lo <= float(is_point.float().mean()) <= hi
+
+
 def test_target_rays_are_drawn_on_the_generators_device(room, tmp_path, checked_draws):
     """The rays through the points are drawn like every other batch ray (CUDA rejects a CPU draw there)."""
     res = train(room, preset="fast", output_dir=tmp_path / "runs", overrides=TINY, progress=False,

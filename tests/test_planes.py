@@ -8,7 +8,8 @@ import pytest
 from lift3d.data.scene import load_scene
 from lift3d.data.stereo import SparsePoints, write_sparse_points
 from lift3d.model.config import ImageDepthConfig
-from lift3d.sfm.planes import fit_planes, point_classes
+from lift3d.data.cameras import Cameras
+from lift3d.sfm.planes import fit_planes, floor_boundary_points, point_classes
 from lift3d.synth import make_scene
 from lift3d.train.image_depth import image_depth_targets
 
@@ -73,6 +74,54 @@ def test_a_sparsely_seen_wall_is_found_among_horizontal_clutter_at_its_points_he
     assert len(found) == 1 and abs(abs(found[0][1]) - 3.0) < 0.03
     assert not any(abs(-d - h) < 0.05 for n, d in zip(planes.normal, planes.offset) if abs(n @ UP) > 0.99
                    for h in (0.8, 1.4, 2.0))
+
+
+def _labelled_box_views(size=96, f=80.0):
+    """Four views from the middle of a 6 × 4 × 2.5 m box room (floor z = 0, walls x = ±3, y = ±2), looking
+    along ±x and ±y and 10° down, with exact labels (wall 1, floor 2, ceiling 3) from ray casting."""
+    c2ws, labels = [], {}
+    pitch = np.radians(10)
+    for k, yaw in enumerate(np.radians([0, 90, 180, 270])):
+        fwd = np.array([np.cos(yaw) * np.cos(pitch), np.sin(yaw) * np.cos(pitch), -np.sin(pitch)])
+        right = np.cross(fwd, UP)
+        right /= np.linalg.norm(right)
+        cam_up = np.cross(right, fwd)
+        c2w = np.eye(4)
+        c2w[:3, 0], c2w[:3, 1], c2w[:3, 2], c2w[:3, 3] = right, cam_up, -fwd, [0.2, -0.1, 1.5]  # OpenGL axes
+        c2ws.append(c2w)
+    cams = Cameras(np.array(c2ws), fx=f, fy=f, cx=size / 2, cy=size / 2, width=size, height=size)
+    r, c = np.mgrid[0:size, 0:size]
+    faces = [(0, 3.0, 1), (0, -3.0, 1), (1, 2.0, 1), (1, -2.0, 1), (2, 0.0, 2), (2, 2.5, 3)]
+    for k in range(4):
+        o, d = cams.rays(k, c.ravel(), r.ravel())
+        best, cls = np.full(len(d), np.inf), np.zeros(len(d), np.int64)
+        for axis, value, label in faces:
+            with np.errstate(divide="ignore", invalid="ignore"):
+                t = (value - o[:, axis]) / d[:, axis]
+            hit = np.isfinite(t) & (t > 1e-6) & (t < best)
+            best[hit], cls[hit] = t[hit], label
+        labels[k] = cls.reshape(size, size)
+    return cams, labels
+
+
+def test_walls_without_texture_come_from_where_the_labels_put_them_on_the_floor():
+    cams, labels = _labelled_box_views()
+    xyz, cls, centres = floor_boundary_points(cams, range(4), labels, UP, 0.0, [FLOOR], [WALL], step=0.1,
+                                              max_height=2.5, tolerance=0.15)
+    assert (cls == WALL).all() and len(centres) == len(xyz)
+    off = np.min(np.abs(np.c_[np.abs(xyz[:, 0]) - 3.0, np.abs(xyz[:, 1]) - 2.0]), axis=1)
+    assert len(xyz) > 100 and np.quantile(off, 0.95) < 0.15
+    assert xyz[:, 2].max() > 2.0 and xyz[:, 2].max() <= 2.5 + 1e-6  # up the wall, not into the ceiling
+    # every wall is seen standing on the floor, and planes fitted to these points alone are the four walls
+    floor = np.c_[np.random.default_rng(0).uniform([-2.9, -1.9], [2.9, 1.9], (3000, 2)), np.zeros(3000)]
+    planes = fit_planes(np.r_[xyz, floor], np.r_[cls, np.full(3000, FLOOR)], [WALL, FLOOR], threshold=0.1,
+                        min_points=8, up=UP)
+    walls = sorted(round(float(abs(d)), 1) for n, d in zip(planes.normal, planes.offset) if abs(n @ UP) < 0.01)
+    assert walls == [2.0, 2.0, 3.0, 3.0]
+    # a boundary far away grazes the floor: a one-pixel slip moves its foot too far, so it is left out
+    strict, _, _ = floor_boundary_points(cams, range(4), labels, UP, 0.0, [FLOOR], [WALL], step=0.1,
+                                         max_height=2.5, tolerance=0.04)
+    assert len(strict) < len(xyz)
 
 
 def test_a_plane_reaches_only_a_margin_beyond_its_points():
@@ -142,6 +191,10 @@ def test_plane_targets_give_stuff_pixels_their_depth_and_are_recorded(floor_room
     # Exact points: a pixel's target is off only where the 2D labels are wrong (the labels are noisy).
     assert floor.sum() > 100 and np.mean(err[floor] < 0.01 * diag) > 0.9
     assert np.mean(err < 0.01 * diag) > 0.9
+    # The training summary says what the planes gave.
+    from lift3d.train.trainer import image_depth_lines
+
+    assert f"{info['planes']} stuff planes giving {info['targets']} targets" in image_depth_lines(targets.info)[0]
     # Sparse and plane sources differ only by the plane targets.
     sparse = image_depth_targets(scene, frames, ImageDepthConfig(source="sparse"))
     assert len(sparse) == (~plane).sum()

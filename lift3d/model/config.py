@@ -82,6 +82,10 @@ class ImageDepthConfig:
     rays_per_image: int = 32
     """Rays per image and step drawn among the pixels that have a depth target (besides the random rays;
     sparse points cover ~1 % of the pixels, so random rays would rarely meet one)."""
+    point_share: float = 0.0
+    """Share of those rays drawn among a frame's point targets (triangulated points: objects as well as
+    stuff), the rest among its dense ones (planes, plane sweep); 0 = uniformly among all its targets, where
+    plane targets outnumber points ~10 to 1."""
     sigma_scale: float = 1.0
     """Each target's standard deviation is multiplied by this."""
     min_sigma: float = 0.005
@@ -92,6 +96,10 @@ class ImageDepthConfig:
     """``planes``: fewest points (after thinning) that make a plane."""
     plane_min_share: float = 0.005
     """``planes``: a plane also needs this share of the stuff points (after thinning)."""
+    plane_floor_boundary: bool = True
+    """``planes``: also fit walls to the points where the 2D labels put a wall on the floor (the ray through
+    that boundary meets the floor plane at the wall's foot; the wall rises vertically from there), which needs no
+    texture (:func:`lift3d.sfm.planes.floor_boundary_points`)."""
     plane_voxel: float = 0.01
     """``planes``: points are thinned to one per cell of this size (fraction of the diagonal) and class
     before fitting, so densely matched spots do not outvote sparsely matched walls; 0 keeps every point."""

@@ -253,6 +253,118 @@ def fit_planes(points: np.ndarray, classes: np.ndarray, stuff_ids, threshold: fl
                        np.array(origin), np.array(basis), list(hull), float(margin))
 
 
+def floor_boundary_points(cameras, frames, labels: dict[int, np.ndarray], normal: np.ndarray, offset: float,
+                          floor_classes, wall_classes, step: float, max_height: float, tolerance: float = np.inf,
+                          min_rows: int = 2) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Points on walls from where the 2D labels put a wall directly above the floor, given the floor's plane.
+
+    Where a pixel labelled wall sits on one labelled floor, the wall meets the floor: the ray through the
+    boundary between the two pixels meets the floor plane at a point of the wall's foot. Walls are vertical,
+    so the vertical line up from that point lies on the wall too, as far as the view keeps labelling it
+    wall. This needs no texture at all (stereo finds next to nothing on a plain wall), only the labels and
+    the floor plane that the floor's many points fix.
+
+    Parameters
+    ----------
+    cameras : lift3d.data.cameras.Cameras
+        The scene's cameras.
+    frames : array of int
+        Frames to use.
+    labels : dict
+        Frame → ``[H, W]`` semantic labels.
+    normal, offset : np.ndarray, float
+        The floor plane ``normal · x + offset = 0`` (``normal`` is up).
+    floor_classes, wall_classes : iterable of int
+        Classes of the floor plane and classes that may stand on it.
+    step : float
+        Spacing of the points up the vertical line (world units).
+    max_height : float
+        Highest point above the floor.
+    tolerance : float
+        Largest distance a foot may move when the boundary moves by one pixel (world units): far from the
+        camera, a ray grazes the floor and a label boundary one pixel off puts the foot metres away.
+    min_rows : int
+        Rows of wall above and of floor below the boundary (a one-pixel label speck is no boundary).
+
+    Returns
+    -------
+    xyz : np.ndarray
+        ``[N, 3]`` points.
+    classes : np.ndarray
+        ``int64 [N]`` the wall pixel's class.
+    centres : np.ndarray
+        ``[N, 3]`` the centre of the camera that saw each point (its sight line).
+
+    Examples
+    --------
+    A camera 1.5 m above the floor z = 0 looking along +y at a wall y = 3 that the labels show above the
+    floor: the points lie on the wall.
+
+    >>> from lift3d.data.cameras import Cameras
+    >>> c2w = np.array([[1.0, 0, 0, 0], [0, 0, -1, 0], [0, 1, 0, 1.5], [0, 0, 0, 1]])  # OpenGL: looks along +y
+    >>> cams = Cameras(c2w[None], fx=32.0, fy=32.0, cx=32.0, cy=32.0, width=64, height=64)
+    >>> rows = np.arange(64)[:, None].repeat(64, 1)
+    >>> horizon = 32 + 32 * 1.5 / 3.0                          # the wall's foot is 1.5 m below the eye, 3 m away
+    >>> sem = np.where(rows < horizon, 1, 2)
+    >>> xyz, cls, _ = floor_boundary_points(cams, [0], {0: sem}, np.array([0, 0, 1.0]), 0.0, [2], [1],
+    ...                                     step=0.25, max_height=3.0)
+    >>> bool(np.allclose(xyz[:, 1], 3.0, atol=0.1)), bool((cls == 1).all()), round(float(xyz[:, 2].max()), 2) > 2.5
+    (True, True, True)
+    """
+    normal = np.asarray(normal, np.float64)
+    floor_ids, wall_ids = [int(c) for c in floor_classes], [int(c) for c in wall_classes]
+    heights = np.arange(0.0, max_height + 1e-9, step)
+    out_xyz, out_cls, out_cam = [], [], []
+    for i in frames:
+        i = int(i)
+        sem = labels[i]
+        h, w = sem.shape
+        c2w = cameras.c2w_opencv[i]
+        if abs(c2w[:3, 0] @ normal) > 0.3:  # rolled: an image column is far from vertical
+            continue
+        wall, floor = np.isin(sem, wall_ids), np.isin(sem, floor_ids)
+        k = min_rows
+        if h < 2 * k:
+            continue
+        # wall in rows r-k+1..r, floor in rows r+1..r+k, the same wall class all the way
+        edge = np.ones((h - 2 * k + 1, w), bool)
+        for j in range(k):
+            edge &= wall[j:h - 2 * k + 1 + j] & floor[k + j:h - k + 1 + j]
+            edge &= sem[j:h - 2 * k + 1 + j] == sem[k - 1:h - k]
+        r, c = np.nonzero(edge)
+        if not len(r):
+            continue
+        r = r + k - 1  # the last wall row
+        o, d = cameras.rays(i, c.astype(np.float64), r + 0.5)
+        denom = d @ normal
+        with np.errstate(divide="ignore", invalid="ignore"):
+            t = -(o @ normal + offset) / denom
+        ok = np.isfinite(t) & (t > 0) & (denom < 0)
+        # one pixel turns the ray by ~1/f; along the floor the foot moves t/f / sin(grazing angle)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            ok &= t / (min(cameras.fx[i], cameras.fy[i]) * np.abs(denom)) < tolerance
+        foot, cls = o[ok] + t[ok, None] * d[ok], sem[r[ok], c[ok]].astype(np.int64)
+        if not len(foot):
+            continue
+        # the vertical line above each foot, while the view keeps labelling it that wall
+        line = foot[:, None, :] + heights[None, :, None] * normal  # [F, S, 3]
+        uv, z = cameras.project(i, line.reshape(-1, 3))
+        u = np.floor(uv[:, 0]).reshape(len(foot), -1)
+        v = np.floor(uv[:, 1]).reshape(len(foot), -1)
+        inside = (z.reshape(len(foot), -1) > 0) & (u >= 0) & (u < w) & (v >= 0) & (v < h)
+        same = np.zeros_like(inside)
+        same[inside] = sem[v[inside].astype(np.int64), u[inside].astype(np.int64)] == np.repeat(cls, len(heights))[
+            inside.ravel()]
+        same[:, 0] = True  # the foot itself
+        keep = np.cumprod(same, axis=1).astype(bool)
+        out_xyz.append(line[keep])
+        out_cls.append(np.repeat(cls, keep.sum(1)))
+        out_cam.append(np.broadcast_to(c2w[:3, 3], (int(keep.sum()), 3)))
+    if not out_xyz:
+        return np.zeros((0, 3)), np.zeros(0, np.int64), np.zeros((0, 3))
+    return np.concatenate(out_xyz), np.concatenate(out_cls), np.concatenate(out_cam)
+
+
 def _ransac_planes(x: np.ndarray, threshold: float, iterations: int, rng: np.random.Generator,
                    up: np.ndarray | None = None, keep: int = 1, min_count: int = 1) -> list[tuple[np.ndarray, float]]:
     """The ``keep`` planes (distinct, each with at least ``min_count`` of ``x`` within ``threshold``) that most

@@ -124,11 +124,14 @@ class TrainingData:
         if targets is None or len(targets) == 0:
             self.num_targets = 0
             self.target_offsets = torch.zeros(len(self) + 1, dtype=torch.long, device=dev)
+            self.target_points = torch.zeros(len(self), dtype=torch.long, device=dev)
             return
         local = np.array([local_of.get(int(f), -1) for f in targets.frame], np.int64)
         keep = local >= 0
-        order = np.argsort(local[keep], kind="stable")
-        local = local[keep][order]
+        dense = np.asarray(targets.dense, bool)[keep]
+        # by frame, and within a frame the point targets before the dense ones (plane or plane-sweep depths)
+        order = np.lexsort((dense, local[keep]))
+        local, dense = local[keep][order], dense[order]
         u, v = targets.u[keep][order], targets.v[keep][order]
         w, h = self.widths.cpu().numpy()[local], self.heights.cpu().numpy()[local]
         col = np.clip(np.round(u).astype(np.int64), 0, w - 1)
@@ -142,6 +145,8 @@ class TrainingData:
         self.target_sigma = torch.from_numpy((targets.sigma[keep][order] * scale * sigma_scale).astype(np.float32)).to(dev)
         counts = np.bincount(local, minlength=len(self))
         self.target_offsets = torch.as_tensor(np.concatenate([[0], np.cumsum(counts)]), dtype=torch.long, device=dev)
+        self.target_points = torch.as_tensor(np.bincount(local[~dense], minlength=len(self)), dtype=torch.long,
+                                             device=dev)  # per frame, how many of its targets are points
 
     def _index_segments(self, seg: np.ndarray, channel: np.ndarray) -> None:
         """Pixels grouped by (frame, 2D segment) for :meth:`sample`'s segment rays: ``seg_pixels`` holds the
@@ -178,11 +183,13 @@ class TrainingData:
 
     def sample(self, images_per_batch: int, rays_per_image: int, patch_size: int,
                generator: torch.Generator, target_rays_per_image: int = 0, segments_per_image: int = 0,
-               rays_per_segment: int = 0, thing_segment_weight: float = 1.0) -> RayBatch:
+               rays_per_segment: int = 0, thing_segment_weight: float = 1.0, point_share: float = 0.0) -> RayBatch:
         """Draw ``images_per_batch`` frames; from each a ``patch_size²`` patch, ``rays_per_image`` random
         pixels, ``segments_per_image × rays_per_segment`` segment rays (masked pixels other than the
         patch's are dropped) and ``target_rays_per_image`` rays through its depth targets from the images
-        (drawn with replacement; none from a frame without targets). Those come last.
+        (drawn with replacement; none from a frame without targets). Those come last; with ``point_share``
+        > 0 that share of them is drawn among the frame's point targets and the rest among its dense ones
+        (plane or plane-sweep depths), else all uniformly among its targets.
 
         Segment rays are Panoptic Lifting's segment sampler: ``segments_per_image`` 2D segments of the frame
         are drawn (with replacement), every segment equally likely whatever its size so that small ones get
@@ -230,8 +237,18 @@ class TrainingData:
         if self.num_targets and target_rays_per_image > 0:
             first, count = self.target_offsets[local], self.target_offsets[local + 1] - self.target_offsets[local]
             r = torch.rand(k, target_rays_per_image, generator=generator, device=generator.device).to(dev)
-            pick = (first[:, None] + (r * count[:, None].float()).long().clamp_max((count - 1).clamp_min(0)[:, None]))
-            pick = pick[(count > 0)[:, None].expand_as(pick)]
+            first, count = first[:, None].expand_as(r), count[:, None].expand_as(r)
+            n_points = int(round(point_share * target_rays_per_image))
+            if n_points > 0:
+                # the first n_points draws among the frame's point targets, the rest among its dense ones
+                # (either group empty: the whole frame's)
+                pts = self.target_points[local][:, None].expand_as(r)
+                is_pt = torch.arange(target_rays_per_image, device=dev)[None, :] < n_points
+                both = (pts > 0) & (pts < count)
+                first = torch.where(both & ~is_pt, first + pts, first)
+                count = torch.where(both, torch.where(is_pt, pts, count - pts), count)
+            pick = first + (r * count.float()).long().clamp_max((count - 1).clamp_min(0))
+            pick = pick[count > 0]
             t_flat = self.target_flat[pick]
             if self.mask is not None:
                 pick, t_flat = pick[self.mask[t_flat]], t_flat[self.mask[t_flat]]

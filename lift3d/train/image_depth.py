@@ -222,10 +222,11 @@ def _plane_rows(scene: Scene, sparse: SparsePoints, dense: DenseDepth, frames: n
     plane-sweep depths (each with its pixel's class): walls get 1–2 sparse points per 1000 pixels but a few
     percent dense coverage (docs/sfm.md). Points are thinned to one per ``plane_voxel`` cell and class, so a
     textured corner that the plane sweep covers densely does not outvote a wall; every observation is a
-    sight line for :func:`lift3d.sfm.planes.fit_planes`' free-space test."""
+    sight line for :func:`lift3d.sfm.planes.fit_planes`' free-space test. With ``plane_floor_boundary``, the
+    planes are fitted once more with the wall points the labels' wall-on-floor boundaries give."""
     # here, not at module level: keeps `import lift3d.train` cheap (lift3d.sfm loads OpenCV)
     from lift3d.sfm.mvs import scene_up
-    from lift3d.sfm.planes import fit_planes, point_classes
+    from lift3d.sfm.planes import fit_planes, floor_boundary_points, point_classes
 
     empty = (np.zeros(0, np.int64),) + (np.zeros(0, np.float32),) * 4 + (np.zeros(0, bool),)
     stuff = scene.stuff_ids
@@ -253,15 +254,43 @@ def _plane_rows(scene: Scene, sparse: SparsePoints, dense: DenseDepth, frames: n
         p = o + d * (np.asarray(depth)[r, c] / (d @ scene.cameras.c2w_opencv[i][:3, 2]))[:, None]
         xyz.append(p), cls.append(labels[i][r, c]), cams.append(o), seen_xyz.append(p)
     xyz, cls = np.concatenate(xyz), np.concatenate(cls).astype(np.int64)
-    if cfg.plane_voxel > 0 and len(xyz):
-        key = np.c_[np.floor(xyz / (cfg.plane_voxel * diag)).astype(np.int64), cls]
-        first = np.unique(key, axis=0, return_index=True)[1]
-        xyz, cls = xyz[first], cls[first]
-    n_stuff = int(np.isin(cls, stuff).sum())
-    planes = fit_planes(xyz, cls, stuff, threshold=cfg.plane_threshold * diag,
-                        min_points=max(cfg.plane_min_points, int(cfg.plane_min_share * n_stuff)),
-                        margin=cfg.plane_margin * diag, up=scene_up(scene.cameras),
-                        sightlines=(np.concatenate(cams), np.concatenate(seen_xyz)))
+    cams, seen_xyz = np.concatenate(cams), np.concatenate(seen_xyz)
+
+    def thin(xyz, cls):
+        if cfg.plane_voxel > 0 and len(xyz):
+            key = np.c_[np.floor(xyz / (cfg.plane_voxel * diag)).astype(np.int64), cls]
+            first = np.unique(key, axis=0, return_index=True)[1]
+            xyz, cls = xyz[first], cls[first]
+        return xyz, cls
+
+    def fit(xyz, cls, cams, seen_xyz):
+        return fit_planes(*thin(xyz, cls), stuff, threshold=cfg.plane_threshold * diag, min_points=min_points,
+                          margin=cfg.plane_margin * diag, up=scene_up(scene.cameras), sightlines=(cams, seen_xyz))
+
+    thinned, thinned_cls = thin(xyz, cls)
+    n_stuff = int(np.isin(thinned_cls, stuff).sum())
+    # from the stereo points alone: the boundary points below would raise it and lose the walls few views see
+    min_points = max(cfg.plane_min_points, int(cfg.plane_min_share * n_stuff))
+    planes = fit(xyz, cls, cams, seen_xyz)
+    if cfg.plane_floor_boundary and len(planes):
+        # The floor (of the planes within 25° of level, the one with most points) fixes where the labels'
+        # wall-on-floor boundaries are in 3D: wall points without texture (lift3d.sfm.planes.floor_boundary_points).
+        # Fitted again with them.
+        up = scene_up(scene.cameras)
+        level = np.abs(planes.normal @ up) > np.cos(np.radians(25))  # the up the fit refined, not the cameras'
+        if level.any():
+            f = int(np.flatnonzero(level)[np.argmax(planes.inliers[level])])
+            n, d = planes.normal[f], planes.offset[f]
+            if n @ up < 0:
+                n, d = -n, -d
+            walls = [c for c in stuff if c not in planes.classes[f]]
+            height = float(np.percentile(thinned @ n + d, 99)) if len(thinned) else 0.0
+            foot, foot_cls, foot_cam = floor_boundary_points(
+                scene.cameras, frames, labels, n, d, planes.classes[f], walls, step=2 * cfg.plane_threshold * diag,
+                max_height=height, tolerance=0.5 * cfg.plane_threshold * diag)
+            info["floor_boundary_points"] = int(len(foot))
+            if len(foot):
+                planes = fit(np.r_[xyz, foot], np.r_[cls, foot_cls], np.r_[cams, foot_cam], np.r_[seen_xyz, foot])
     info.update(planes=len(planes), classes=[sorted(c) for c in planes.classes], stuff_points=n_stuff,
                 points_on_planes=int(planes.inliers.sum()),
                 median_rms=round(float(np.median(planes.rms)), 4) if len(planes) else None)

@@ -287,6 +287,7 @@ class Trainer:
         with record_function("step.sample_batch"):
             batch = self.data.sample(self.images_per_rank, d.rays_per_image, d.patch_size, self.generator,
                                      target_rays_per_image=self.cfg.image_depth.rays_per_image,
+                                     point_share=self.cfg.image_depth.point_share,
                                      segments_per_image=d.segments_per_image, rays_per_segment=d.rays_per_segment,
                                      thing_segment_weight=d.thing_segment_weight)
         factor = _lr_factor(self.step, self.cfg, self.elapsed())
@@ -538,6 +539,11 @@ def image_depth_lines(info: dict | None) -> list[str]:
                 f"{info.get('observations', 0)} observations")
         if "dense_coverage" in info:
             text += f", plane sweep {100 * info['dense_coverage']:.1f} % of pixels"
+        planes = info.get("planes")
+        if isinstance(planes, dict) and planes.get("planes"):
+            text += (f", {planes['planes']} stuff planes giving {planes.get('targets', 0)} targets"
+                     + (f" ({planes['floor_boundary_points']} wall points from the labels' floor line)"
+                        if planes.get("floor_boundary_points") else ""))
         text += f"; {info.get('seconds', 0):.0f} s)"
     return [text] + [f"  warning        {w}" for w in info.get("warnings", [])]
 
