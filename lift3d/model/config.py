@@ -82,10 +82,12 @@ class ImageDepthConfig:
     rays_per_image: int = 32
     """Rays per image and step drawn among the pixels that have a depth target (besides the random rays;
     sparse points cover ~1 % of the pixels, so random rays would rarely meet one)."""
-    point_share: float = 0.0
+    point_share: float = 0.5
     """Share of those rays drawn among a frame's point targets (triangulated points: objects as well as
     stuff), the rest among its dense ones (planes, plane sweep); 0 = uniformly among all its targets, where
-    plane targets outnumber points ~10 to 1."""
+    plane targets outnumber points ~10 to 1 and objects got ~2 of 32 rays. On tuning scenes 100 and 102
+    (fast): objects found 0.25 -> 0.75 on both, point mIoU +0.03 / +0.01, 3D F-score unchanged
+    (0.882 -> 0.888, 0.804 -> 0.801), exported instances 11 -> 14 and 13 -> 17."""
     sigma_scale: float = 1.0
     """Each target's standard deviation is multiplied by this."""
     min_sigma: float = 0.005
