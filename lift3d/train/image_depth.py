@@ -287,7 +287,7 @@ def _plane_rows(scene: Scene, sparse: SparsePoints, dense: DenseDepth, frames: n
             height = float(np.percentile(thinned @ n + d, 99)) if len(thinned) else 0.0
             foot, foot_cls, foot_cam = floor_boundary_points(
                 scene.cameras, frames, labels, n, d, planes.classes[f], walls, step=2 * cfg.plane_threshold * diag,
-                max_height=height, tolerance=0.5 * cfg.plane_threshold * diag)
+                max_height=height, tolerance=cfg.plane_threshold * diag)
             info["floor_boundary_points"] = int(len(foot))
             if len(foot):
                 planes = fit(np.r_[xyz, foot], np.r_[cls, foot_cls], np.r_[cams, foot_cam], np.r_[seen_xyz, foot])
