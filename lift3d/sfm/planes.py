@@ -339,10 +339,9 @@ def floor_boundary_points(cameras, frames, labels: dict[int, np.ndarray], normal
         denom = d @ normal
         with np.errstate(divide="ignore", invalid="ignore"):
             t = -(o @ normal + offset) / denom
-        ok = np.isfinite(t) & (t > 0) & (denom < 0)
-        # one pixel turns the ray by ~1/f; along the floor the foot moves t/f / sin(grazing angle)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            ok &= t / (min(cameras.fx[i], cameras.fy[i]) * np.abs(denom)) < tolerance
+            # one pixel turns the ray by ~1/f; along the floor the foot moves t/f / sin(grazing angle)
+            slip = t / (min(cameras.fx[i], cameras.fy[i]) * np.abs(denom))
+        ok = np.isfinite(t) & (t > 0) & (denom < 0) & (slip < tolerance)
         foot, cls = o[ok] + t[ok, None] * d[ok], sem[r[ok], c[ok]].astype(np.int64)
         if not len(foot):
             continue

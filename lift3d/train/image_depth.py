@@ -263,21 +263,23 @@ def _plane_rows(scene: Scene, sparse: SparsePoints, dense: DenseDepth, frames: n
             xyz, cls = xyz[first], cls[first]
         return xyz, cls
 
-    def fit(xyz, cls, cams, seen_xyz):
-        return fit_planes(*thin(xyz, cls), stuff, threshold=cfg.plane_threshold * diag, min_points=min_points,
-                          margin=cfg.plane_margin * diag, up=scene_up(scene.cameras), sightlines=(cams, seen_xyz))
+    up = scene_up(scene.cameras)
+
+    def fit(xyz, cls, cams, seen_xyz):  # points already thinned
+        return fit_planes(xyz, cls, stuff, threshold=cfg.plane_threshold * diag, min_points=min_points,
+                          margin=cfg.plane_margin * diag, up=up, sightlines=(cams, seen_xyz))
 
     thinned, thinned_cls = thin(xyz, cls)
     n_stuff = int(np.isin(thinned_cls, stuff).sum())
     # from the stereo points alone: the boundary points below would raise it and lose the walls few views see
     min_points = max(cfg.plane_min_points, int(cfg.plane_min_share * n_stuff))
-    planes = fit(xyz, cls, cams, seen_xyz)
+    planes = fit(thinned, thinned_cls, cams, seen_xyz)
     if cfg.plane_floor_boundary and len(planes):
         # The floor (of the planes within 25° of level, the one with most points) fixes where the labels'
         # wall-on-floor boundaries are in 3D: wall points without texture (lift3d.sfm.planes.floor_boundary_points).
         # Fitted again with them.
-        up = scene_up(scene.cameras)
-        level = np.abs(planes.normal @ up) > np.cos(np.radians(25))  # the up the fit refined, not the cameras'
+        # 25°: the fit levels its planes to its own refined up, which may differ from the cameras' mean up
+        level = np.abs(planes.normal @ up) > np.cos(np.radians(25))
         if level.any():
             f = int(np.flatnonzero(level)[np.argmax(planes.inliers[level])])
             n, d = planes.normal[f], planes.offset[f]
@@ -290,7 +292,9 @@ def _plane_rows(scene: Scene, sparse: SparsePoints, dense: DenseDepth, frames: n
                 max_height=height, tolerance=cfg.plane_threshold * diag)
             info["floor_boundary_points"] = int(len(foot))
             if len(foot):
-                planes = fit(np.r_[xyz, foot], np.r_[cls, foot_cls], np.r_[cams, foot_cam], np.r_[seen_xyz, foot])
+                # thinning the thinned points again keeps them (one per cell and class already, first in order)
+                planes = fit(*thin(np.r_[thinned, foot], np.r_[thinned_cls, foot_cls]), np.r_[cams, foot_cam],
+                             np.r_[seen_xyz, foot])
     info.update(planes=len(planes), classes=[sorted(c) for c in planes.classes], stuff_points=n_stuff,
                 points_on_planes=int(planes.inliers.sum()),
                 median_rms=round(float(np.median(planes.rms)), 4) if len(planes) else None)
