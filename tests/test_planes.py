@@ -133,6 +133,61 @@ def test_a_plane_reaches_only_a_margin_beyond_its_points():
     assert k.tolist() == [0, 0, -1] and np.isinf(t[2]) and t[0] == pytest.approx(1.0, abs=0.02)
 
 
+RUG = 4
+
+
+def test_a_small_class_lying_on_a_plane_is_held_by_it():
+    # A rug 6 mm above the floor with 10 of the floor's 300 points: far below a quarter of the plane's inliers,
+    # but all of the rug's points. Without the cover rule the rug's pixels got no target.
+    rng = np.random.default_rng(2)
+    floor = np.c_[rng.uniform(-3, 3, 300), rng.uniform(-2, 2, 300), np.zeros(300)]
+    rug = np.c_[rng.uniform(-0.5, 0.5, 10), rng.uniform(-0.5, 0.5, 10), np.full(10, 0.006)]
+    pts, cls = np.r_[floor, rug], np.r_[np.full(300, FLOOR), np.full(10, RUG)]
+    planes = fit_planes(pts, cls, [FLOOR, RUG], threshold=0.05, min_points=8, up=UP)
+    assert len(planes) == 1 and planes.classes[0] == frozenset({FLOOR, RUG})
+    assert fit_planes(pts, cls, [FLOOR, RUG], threshold=0.05, min_points=8, up=UP,
+                      min_class_cover=1.01).classes[0] == frozenset({FLOOR})
+
+
+def _l_room(rng):
+    """Points of an L-shaped room: the square [-3, 3]² without its corner x < -1, y < -1 (floor z = 0, walls
+    3 m high), 20 points per metre of wall, and cameras in the room at 1.5 m seeing every point."""
+    outline = [(-3, 3), (3, 3), (3, -3), (-1, -3), (-1, -1), (-3, -1)]
+    walls = []
+    for (x0, y0), (x1, y1) in zip(outline, outline[1:] + outline[:1]):
+        n = int(20 * np.hypot(x1 - x0, y1 - y0))
+        s = rng.uniform(0.05, 0.95, n)
+        walls.append(np.c_[x0 + s * (x1 - x0), y0 + s * (y1 - y0), rng.uniform(0.1, 2.9, n)])
+    floor = np.c_[rng.uniform(-3, 3, 2000), rng.uniform(-3, 3, 2000), np.zeros(2000)]
+    floor = floor[~((floor[:, 0] < -1) & (floor[:, 1] < -1))]
+    pts = np.r_[np.concatenate(walls), floor]
+    cls = np.r_[np.full(sum(map(len, walls)), WALL), np.full(len(floor), FLOOR)]
+    cams = np.array([[1.5, 1.5, 1.5], [-2.0, 2.0, 1.5], [1.5, -2.0, 1.5], [0.0, 0.0, 1.5], [2.0, 0.0, 1.5]])
+    cam, pt = np.repeat(cams, len(pts), 0), np.tile(pts, (len(cams), 1))
+    # a camera sees a point when the sight line stays out of the missing corner
+    s = np.linspace(0.0, 0.98, 50)[None, :, None]
+    on_line = cam[:, None, :] + s * (pt - cam)[:, None, :]
+    seen = ~np.any((on_line[..., 0] < -1.01) & (on_line[..., 1] < -1.01), axis=1)
+    return pts, cls, (cam[seen], pt[seen])
+
+
+def test_an_inner_wall_of_an_l_shaped_room_is_found_and_does_not_reach_across_the_room():
+    pts, cls, sight = _l_room(np.random.default_rng(4))
+    planes = fit_planes(pts, cls, [WALL, FLOOR], threshold=0.05, min_points=8, margin=1.0, up=UP, sightlines=sight)
+    walls = {(int(np.argmax(np.abs(n[:2]))), round(float(-d / n[np.argmax(np.abs(n[:2]))]), 1))
+             for n, d in zip(planes.normal, planes.offset) if abs(n @ UP) < 0.01}
+    # the inner walls x = -1 and y = -1 too: only their points' hull counts against the sight lines, not the
+    # margin by which targets may reach beyond it (that margin runs into the room, where sight lines cross it)
+    assert walls == {(0, 3.0), (0, -3.0), (1, 3.0), (1, -3.0), (0, -1.0), (1, -1.0)}
+    # A ray from (1, -0.5) looking along -x passes x = -1 half a metre beyond the inner wall's end, inside its
+    # margin, and must go on to the wall x = -3; one looking along -x at y = -2 meets the inner wall x = -1.
+    o = np.array([[1.0, -0.5, 1.5], [1.0, -2.0, 1.5]])
+    t, k = planes.first_hit(o, np.tile([-1.0, 0.0, 0.0], (2, 1)))
+    assert t == pytest.approx([4.0, 2.0], abs=0.05)
+    # The margin still fills a corner where two walls' points stop short of it.
+    t, _ = planes.first_hit(np.array([[0.0, 0.0, 1.5]]), np.array([[1.0, 1.0, 0.0]]) / np.sqrt(2))
+    assert t[0] == pytest.approx(3.0 * np.sqrt(2), abs=0.1)
+
 def test_point_class_is_the_majority_of_its_observations_when_they_agree():
     obs_point = np.array([0, 0, 0, 1, 1, 2, 2, 2, 2])
     obs_class = np.array([1, 1, 2, 3, 4, 0, 5, 5, 5])
