@@ -292,7 +292,14 @@ def test_compute_2d_metrics_of_gt_as_prediction_is_perfect(trained):
     per_frame = LabelStack(gt.semantic, np.where(gt.instance > 0, gt.instance + 1000 * frame_of_pixel, 0))
     assert compute_2d_metrics(per_frame, gt, scene.thing_ids, scene.stuff_ids)["things"]["pq_strict"] < 0.5
     wrong = LabelStack(np.where(gt.semantic == scene.stuff_ids[0], scene.stuff_ids[1], gt.semantic), gt.instance)
-    assert compute_2d_metrics(wrong, gt, scene.thing_ids, scene.stuff_ids)["miou_strict"] < 1.0
+    w = compute_2d_metrics(wrong, gt, scene.thing_ids, scene.stuff_ids)
+    assert w["miou_strict"] < 1.0
+    # the strict per-class table: every class the GT shows, with its GT pixels; the relabelled class scores 0
+    counts = np.bincount(gt.semantic.ravel())
+    assert {int(c): v["gt_pixels"] for c, v in w["per_class_iou_strict"].items()} == {
+        c: int(counts[c]) for c in scene.thing_ids + scene.stuff_ids if c < len(counts) and counts[c] > 0}
+    assert w["per_class_iou_strict"][str(scene.stuff_ids[0])]["iou"] == 0.0
+    assert all(v["iou"] == 1.0 for v in r["per_class_iou_strict"].values())
 
 
 def test_metrics_from_arrays_with_a_perfect_prediction(trained):

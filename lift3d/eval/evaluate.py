@@ -122,7 +122,9 @@ def compute_2d_metrics(preds, gts, things: Iterable[int], stuff: Iterable[int]) 
         ``miou``, ``pq_scene``, ``sq_scene``, ``rq_scene`` at ``min_area`` 0.005 and the same keys with
         suffix ``_strict`` at ``min_area`` 0; ``things`` and ``stuff`` blocks with ``pq sq rq n`` and
         ``pq_strict sq_strict rq_strict n_strict``; ``n_classes`` / ``n_classes_strict`` (classes PQ
-        averaged over); ``per_class`` (str(category id) → ``pq sq rq tp fp fn iou``, ``min_area`` 0.005).
+        averaged over); ``per_class`` (str(category id) → ``pq sq rq tp fp fn iou``, ``min_area`` 0.005);
+        ``per_class_iou_strict`` (str(category id) → ``iou gt_pixels`` for every class with a GT pixel,
+        ``min_area`` 0).
         NaN where a mean is over no class (written as null in JSON).
 
     Examples
@@ -157,6 +159,12 @@ def compute_2d_metrics(preds, gts, things: Iterable[int], stuff: Iterable[int]) 
             for cid, c in pq["per_class"].items():
                 per_class[str(cid)] = {k: c[k] for k in ("pq", "sq", "rq", "tp", "fp", "fn")}
                 per_class[str(cid)]["iou"] = float(iou[cid]) if cid < len(iou) else float("nan")
+        else:
+            # every class the GT shows, however small: its IoU and how many GT pixels it has
+            gt_pixels = mi["confusion"].sum(axis=1)
+            out["per_class_iou_strict"] = {
+                str(c): {"iou": float(mi["per_class_iou"][c]), "gt_pixels": int(gt_pixels[c])}
+                for c in things + stuff if c < len(gt_pixels) and gt_pixels[c] > 0}
     out["per_class"] = per_class
     return out
 
