@@ -123,3 +123,12 @@ def test_bad_input_is_a_value_error_naming_the_argument(run):
         run.render(np.eye(3), np.eye(3), 8, 8)
     with pytest.raises(InputError, match="run folder not found"):
         lift3d.load_run("/nonexistent/run")
+
+
+def test_the_render_timing_recipe_of_the_benchmarks_runs(tiny_run, capsys):
+    """docs/benchmarks.md tells users how to time the render figure through the public API: that code runs."""
+    from lift3d.bench.runner import RENDER_THROUGH_THE_API
+
+    code = "\n".join(RENDER_THROUGH_THE_API).split("```python\n")[1].split("```")[0]
+    exec(code.replace("outputs/<scene>/fast/<YYYY-MM-DD_HHMMSS>", str(tiny_run)), {})
+    assert capsys.readouterr().out.strip().endswith("ms per 2048 rays")
