@@ -9,7 +9,7 @@ from lift3d.data.scene import load_scene
 from lift3d.data.stereo import SparsePoints, write_sparse_points
 from lift3d.model.config import ImageDepthConfig
 from lift3d.data.cameras import Cameras
-from lift3d.sfm.planes import fit_planes, floor_boundary_points, point_classes
+from lift3d.sfm.planes import ceiling_height, ceiling_points, fit_planes, floor_boundary_points, point_classes
 from lift3d.synth import make_scene
 from lift3d.train.image_depth import image_depth_targets
 
@@ -76,11 +76,11 @@ def test_a_sparsely_seen_wall_is_found_among_horizontal_clutter_at_its_points_he
                    for h in (0.8, 1.4, 2.0))
 
 
-def _labelled_box_views(size=96, f=80.0):
+def _labelled_box_views(size=96, f=80.0, pitch_deg=10.0):
     """Four views from the middle of a 6 × 4 × 2.5 m box room (floor z = 0, walls x = ±3, y = ±2), looking
-    along ±x and ±y and 10° down, with exact labels (wall 1, floor 2, ceiling 3) from ray casting."""
+    along ±x and ±y and ``pitch_deg`` down, with exact labels (wall 1, floor 2, ceiling 3) from ray casting."""
     c2ws, labels = [], {}
-    pitch = np.radians(10)
+    pitch = np.radians(pitch_deg)
     for k, yaw in enumerate(np.radians([0, 90, 180, 270])):
         fwd = np.array([np.cos(yaw) * np.cos(pitch), np.sin(yaw) * np.cos(pitch), -np.sin(pitch)])
         right = np.cross(fwd, UP)
@@ -122,6 +122,38 @@ def test_walls_without_texture_come_from_where_the_labels_put_them_on_the_floor(
     strict, _, _ = floor_boundary_points(cams, range(4), labels, UP, 0.0, [FLOOR], [WALL], step=0.1,
                                          max_height=2.5, tolerance=0.04)
     assert len(strict) < len(xyz)
+
+
+CEILING, WINDOW = 3, 5
+
+
+def test_a_plain_ceiling_gets_its_plane_from_where_the_labels_put_it_on_the_walls():
+    cams, labels = _labelled_box_views()
+    xyz, cls, _ = floor_boundary_points(cams, range(4), labels, UP, 0.0, [FLOOR], [WALL], step=0.1, max_height=2.5,
+                                        tolerance=0.15)
+    floor = np.c_[np.random.default_rng(0).uniform([-2.9, -1.9], [2.9, 1.9], (3000, 2)), np.zeros(3000)]
+    planes = fit_planes(np.r_[xyz, floor], np.r_[cls, np.full(3000, FLOOR)], [WALL, FLOOR, CEILING], threshold=0.1,
+                        min_points=8, up=UP, margin=0.3)
+    # views that look up a little see the ceiling meet the walls
+    cams, labels = _labelled_box_views(pitch_deg=-15.0)
+    top, count = ceiling_height(cams, range(4), labels, planes, UP, 0.0, [CEILING], threshold=0.1, min_points=8)
+    assert count > 50 and top == pytest.approx(2.5, abs=0.05)
+    # its pixels' rays on that plane, and with it the plane set gives them their depth
+    pts, pcls, _ = ceiling_points(cams, range(4), labels, UP, -top, [CEILING], stride=4)
+    assert len(pts) > 20 and (pcls == CEILING).all() and np.allclose(pts[:, 2], top)
+    with_ceiling = planes.with_plane(UP, -top, pts, pcls, 0.1)
+    eye, seen = np.array([[0.2, -0.1, 1.5]]), pts[len(pts) // 2]
+    t, k = with_ceiling.first_hit(eye, (seen - eye) / np.linalg.norm(seen - eye))
+    assert with_ceiling.holds(k, np.array([CEILING]))[0] and t[0] == pytest.approx(np.linalg.norm(seen - eye), abs=1e-6)
+    # A window above a wall (its sill 1.2 m high, below the cameras' eyes) is no ceiling: no height for it.
+    windows = {k: np.where((lab == CEILING), WINDOW, lab) for k, lab in labels.items()}
+    for k, lab in windows.items():
+        o, d = cams.rays(k, *np.mgrid[0:96, 0:96][::-1].reshape(2, -1))
+        t_wall = np.min([np.where(d[:, a] != 0, (np.sign(d[:, a]) * v - o[:, a]) / d[:, a], np.inf)
+                         for a, v in ((0, 3.0), (1, 2.0))], axis=0)
+        z = (o[:, 2] + t_wall * d[:, 2]).reshape(96, 96)
+        windows[k] = np.where((lab == WALL) & (z > 1.2) | (lab == WINDOW), WINDOW, lab)
+    assert ceiling_height(cams, range(4), windows, planes, UP, 0.0, [WINDOW], threshold=0.1, min_points=8)[0] is None
 
 
 def test_a_plane_reaches_only_a_margin_beyond_its_points():

@@ -102,6 +102,10 @@ class ImageDepthConfig:
     """``planes``: also fit walls to the points where the 2D labels put a wall on the floor (the ray through
     that boundary meets the floor plane at the wall's foot; the wall rises vertically from there), which needs no
     texture (:func:`lift3d.sfm.planes.floor_boundary_points`)."""
+    plane_ceiling_boundary: bool = True
+    """``planes``: a stuff class no plane holds (a plain ceiling has next to no points) whose pixels the 2D
+    labels put directly above walls gets a level plane where those boundary rays meet the walls' planes, when
+    they agree on one height above the cameras (:func:`lift3d.sfm.planes.ceiling_height`)."""
     plane_voxel: float = 0.01
     """``planes``: points are thinned to one per cell of this size (fraction of the diagonal) and class
     before fitting, so densely matched spots do not outvote sparsely matched walls; 0 keeps every point."""

@@ -75,6 +75,21 @@ class StuffPlanes:
     def __len__(self) -> int:
         return len(self.offset)
 
+    def with_plane(self, normal: np.ndarray, offset: float, points: np.ndarray, classes: np.ndarray,
+                   threshold: float) -> "StuffPlanes":
+        """These planes and one more, ``normal · x + offset = 0``, over the hull of ``points`` of ``classes``
+        (``[N]``: it holds them all; unchanged when the points lie along a line)."""
+        normal = np.asarray(normal, np.float64)
+        extent = _extent(np.asarray(points, np.float64), normal, threshold) if len(points) >= 3 else None
+        if extent is None:
+            return self
+        origin, basis, hull = extent
+        rms = float(np.sqrt(np.mean((points @ normal + offset) ** 2)))
+        return StuffPlanes(np.r_[self.normal.reshape(-1, 3), normal[None]], np.r_[self.offset, offset],
+                           [*self.classes, frozenset(int(c) for c in np.unique(classes))], np.r_[self.rms, rms],
+                           np.r_[self.inliers, len(points)].astype(np.int64), np.r_[self.origin.reshape(-1, 3), origin[None]],
+                           np.r_[self.basis.reshape(-1, 2, 3), basis[None]], [*self.hull, hull], self.margin)
+
     def holds(self, plane: np.ndarray, class_id: np.ndarray) -> np.ndarray:
         """``[R] bool``: plane ``plane[r]`` (``-1`` = none) holds class ``class_id[r]``."""
         out = np.zeros(len(plane), bool)
@@ -338,19 +353,9 @@ def floor_boundary_points(cameras, frames, labels: dict[int, np.ndarray], normal
         c2w = cameras.c2w_opencv[i]
         if abs(c2w[:3, 0] @ normal) > 0.3:  # rolled: an image column is far from vertical
             continue
-        wall, floor = np.isin(sem, wall_ids), np.isin(sem, floor_ids)
-        k = min_rows
-        if h < 2 * k:
-            continue
-        # wall in rows r-k+1..r, floor in rows r+1..r+k, the same wall class all the way
-        edge = np.ones((h - 2 * k + 1, w), bool)
-        for j in range(k):
-            edge &= wall[j:h - 2 * k + 1 + j] & floor[k + j:h - k + 1 + j]
-            edge &= sem[j:h - 2 * k + 1 + j] == sem[k - 1:h - k]
-        r, c = np.nonzero(edge)
+        r, c = label_boundary(sem, wall_ids, floor_ids, min_rows, same="upper")  # r: the last wall row
         if not len(r):
             continue
-        r = r + k - 1  # the last wall row
         o, d = cameras.rays(i, c.astype(np.float64), r + 0.5)
         denom = d @ normal
         with np.errstate(divide="ignore", invalid="ignore"):
@@ -378,6 +383,133 @@ def floor_boundary_points(cameras, frames, labels: dict[int, np.ndarray], normal
     if not out_xyz:
         return np.zeros((0, 3)), np.zeros(0, np.int64), np.zeros((0, 3))
     return np.concatenate(out_xyz), np.concatenate(out_cls), np.concatenate(out_cam)
+
+
+def ceiling_height(cameras, frames, labels: dict[int, np.ndarray], planes: "StuffPlanes", normal: np.ndarray,
+                   offset: float, ceiling_classes, threshold: float, min_points: int, min_rows: int = 2
+                   ) -> tuple[float | None, int]:
+    """The ceiling's height above the floor, from where the 2D labels put a ceiling class directly above a wall
+    whose plane is known: the ray through that boundary meets the wall's plane at the ceiling.
+
+    Parameters
+    ----------
+    planes : StuffPlanes
+        The planes found so far; walls are those within 10° of vertical.
+    normal, offset : np.ndarray, float
+        The floor plane (``normal`` up).
+    ceiling_classes : iterable of int
+        Classes that may be the ceiling (stuff that no floor or wall plane holds).
+    threshold : float
+        The heights must agree: their median absolute deviation is at most this (world units).
+    min_points : int
+        Fewest boundary points.
+
+    Returns
+    -------
+    height : float or None
+        Median height of the boundary points above the floor; None when too few, when they disagree, or when
+        it is not above the cameras (a ceiling is).
+    count : int
+        Boundary points found.
+
+    Examples
+    --------
+    A camera 1.5 m above the floor looking along +y at the wall y = 2 of a room 2.5 m high:
+
+    >>> from lift3d.data.cameras import Cameras
+    >>> c2w = np.array([[1.0, 0, 0, 0], [0, 0, -1, 0], [0, 1, 0, 1.5], [0, 0, 0, 1]])
+    >>> cams = Cameras(c2w[None], fx=32.0, fy=32.0, cx=32.0, cy=32.0, width=64, height=64)
+    >>> rows = np.arange(64)[:, None].repeat(64, 1)
+    >>> sem = np.where(rows < 16, 3, 1)                        # 1 m above the eye, 2 m away
+    >>> wall = fit_planes(np.c_[np.linspace(-3, 3, 20), np.full(20, 2.0), np.tile([0.5, 2.5], 10)],
+    ...                   np.ones(20, int), [1], threshold=0.05, min_points=8, up=np.array([0, 0, 1.0]))
+    >>> height, count = ceiling_height(cams, [0], {0: sem}, wall, np.array([0, 0, 1.0]), 0.0, [3], 0.05, 8)
+    >>> round(height, 2), count
+    (2.5, 64)
+    """
+    normal = np.asarray(normal, np.float64)
+    vertical = np.abs(planes.normal @ normal) < np.sin(np.radians(10))
+    walls = sorted(set().union(*[c for c, v in zip(planes.classes, vertical) if v])) if vertical.any() else []
+    ceiling = [int(c) for c in ceiling_classes]
+    if not walls or not ceiling:
+        return None, 0
+    heights, eyes = [], []
+    for i in frames:
+        i = int(i)
+        sem = labels[i]
+        r, c = label_boundary(sem, ceiling, walls, min_rows, same="lower")
+        if not len(r):
+            continue
+        o, d = cameras.rays(i, c.astype(np.float64), r + 0.5)
+        t, k = planes.first_hit(o, d)
+        ok = (k >= 0) & planes.holds(k, sem[r + 1, c].astype(np.int64))
+        ok[ok] &= vertical[k[ok]]
+        heights.append((o[ok] + t[ok, None] * d[ok]) @ normal + offset)
+        eyes.append(float(cameras.c2w_opencv[i][:3, 3] @ normal + offset))
+    h = np.concatenate(heights) if heights else np.zeros(0)
+    if len(h) < min_points:
+        return None, int(len(h))
+    height = float(np.median(h))
+    if np.median(np.abs(h - height)) > threshold or height <= np.median(eyes):
+        return None, int(len(h))
+    return height, int(len(h))
+
+
+def ceiling_points(cameras, frames, labels: dict[int, np.ndarray], normal: np.ndarray, offset: float,
+                   ceiling_classes, stride: int = 4) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Where the rays of the pixels the labels call ceiling (every ``stride``-th row and column) meet the ceiling
+    plane ``normal · x + offset = 0``: points on a plain ceiling, for the plane fit. Returns ``xyz``,
+    ``classes`` and the camera centres (sight lines), as :func:`floor_boundary_points`."""
+    normal = np.asarray(normal, np.float64)
+    ids = [int(c) for c in ceiling_classes]
+    out_xyz, out_cls, out_cam = [], [], []
+    for i in frames:
+        i = int(i)
+        sem = labels[i][stride // 2::stride, stride // 2::stride]
+        r, c = np.nonzero(np.isin(sem, ids))
+        if not len(r):
+            continue
+        o, d = cameras.rays(i, (c * stride + stride // 2).astype(np.float64), (r * stride + stride // 2).astype(np.float64))
+        with np.errstate(divide="ignore", invalid="ignore"):
+            t = -(o @ normal + offset) / (d @ normal)
+        ok = np.isfinite(t) & (t > 0)
+        out_xyz.append(o[ok] + t[ok, None] * d[ok])
+        out_cls.append(sem[r[ok], c[ok]].astype(np.int64))
+        out_cam.append(o[ok])
+    if not out_xyz:
+        return np.zeros((0, 3)), np.zeros(0, np.int64), np.zeros((0, 3))
+    return np.concatenate(out_xyz), np.concatenate(out_cls), np.concatenate(out_cam)
+
+
+def label_boundary(sem: np.ndarray, upper, lower, min_rows: int = 2, same: str = "upper") -> tuple[np.ndarray, np.ndarray]:
+    """Pixels where ``min_rows`` rows of ``upper`` classes sit directly on ``min_rows`` rows of ``lower`` ones.
+
+    Parameters
+    ----------
+    sem : np.ndarray
+        ``[H, W]`` labels.
+    upper, lower : iterable of int
+    same : str
+        ``upper`` or ``lower``: the side whose rows must all hold one class (the wall's side).
+
+    Returns
+    -------
+    rows, cols : np.ndarray
+        The last ``upper`` row of each boundary and its column.
+    """
+    h, _ = sem.shape
+    k = min_rows
+    if h < 2 * k:
+        return np.zeros(0, np.int64), np.zeros(0, np.int64)
+    up, lo = np.isin(sem, [int(c) for c in upper]), np.isin(sem, [int(c) for c in lower])
+    n = h - 2 * k + 1
+    edge = np.ones((n, sem.shape[1]), bool)
+    ref = sem[k - 1:k - 1 + n] if same == "upper" else sem[k:k + n]
+    for j in range(k):
+        edge &= up[j:j + n] & lo[k + j:k + j + n]
+        edge &= (sem[j:j + n] if same == "upper" else sem[k + j:k + j + n]) == ref
+    r, c = np.nonzero(edge)
+    return r + k - 1, c
 
 
 def _ransac_planes(x: np.ndarray, threshold: float, iterations: int, rng: np.random.Generator,

@@ -293,8 +293,12 @@ def _plane_rows(scene: Scene, sparse: SparsePoints, dense: DenseDepth, frames: n
             info["floor_boundary_points"] = int(len(foot))
             if len(foot):
                 # thinning the thinned points again keeps them (one per cell and class already, first in order)
-                planes = fit(*thin(np.r_[thinned, foot], np.r_[thinned_cls, foot_cls]), np.r_[cams, foot_cam],
-                             np.r_[seen_xyz, foot])
+                thinned, thinned_cls = thin(np.r_[thinned, foot], np.r_[thinned_cls, foot_cls])
+                cams, seen_xyz = np.r_[cams, foot_cam], np.r_[seen_xyz, foot]
+                planes = fit(thinned, thinned_cls, cams, seen_xyz)
+            if cfg.plane_ceiling_boundary and len(planes):
+                planes, found = _ceiling_plane(scene, frames, labels, planes, up, stuff, cfg, diag, min_points)
+                info.update(found)
     info.update(planes=len(planes), classes=[sorted(c) for c in planes.classes], stuff_points=n_stuff,
                 points_on_planes=int(planes.inliers.sum()),
                 median_rms=round(float(np.median(planes.rms)), 4) if len(planes) else None)
@@ -329,6 +333,34 @@ def _plane_rows(scene: Scene, sparse: SparsePoints, dense: DenseDepth, frames: n
     rows = tuple(np.concatenate(a) for a in zip(*out))
     info["targets"] = int(len(rows[0]))
     return rows, info
+
+
+def _ceiling_plane(scene: Scene, frames, labels, planes, up, stuff, cfg: ImageDepthConfig, diag: float,
+                   min_points: int):
+    """The planes and, when the labels' ceiling-on-wall boundaries and the walls found give the ceiling's height,
+    a horizontal ceiling plane there over the points where the ceiling pixels' rays meet it (docs/sfm.md)."""
+    from lift3d.sfm.planes import ceiling_height, ceiling_points
+
+    level = np.abs(planes.normal @ up) > np.cos(np.radians(25))
+    if not level.any():
+        return planes, {}
+    f = int(np.flatnonzero(level)[np.argmax(planes.inliers[level])])
+    n, d = planes.normal[f], planes.offset[f]
+    if n @ up < 0:
+        n, d = -n, -d
+    # stuff no plane holds yet (a ceiling with enough texture has its plane from stereo already); each class on
+    # its own, so that a window above a wall (its sill is no ceiling) cannot pull a ceiling's height
+    found: dict[str, Any] = {"ceiling_boundary_points": 0, "ceiling_height": None}
+    for c in [c for c in stuff if not any(c in k for k in planes.classes)]:
+        top, count = ceiling_height(scene.cameras, frames, labels, planes, n, d, [c],
+                                    threshold=cfg.plane_threshold * diag, min_points=min_points)
+        found["ceiling_boundary_points"] += count
+        if top is None:
+            continue
+        xyz, cls, _ = ceiling_points(scene.cameras, frames, labels, n, d - top, [c], stride=max(1, int(cfg.plane_stride)))
+        planes = planes.with_plane(n, d - top, xyz, cls, cfg.plane_threshold * diag)
+        found["ceiling_height"] = round(top, 4)
+    return planes, found
 
 
 # ------------------------------------------------------------------------------------------ dense maps
