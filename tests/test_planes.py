@@ -285,3 +285,14 @@ def test_plane_targets_give_stuff_pixels_their_depth_and_are_recorded(floor_room
     # Sparse and plane sources differ only by the plane targets.
     sparse = image_depth_targets(scene, frames, ImageDepthConfig(source="sparse"))
     assert len(sparse) == (~plane).sum()
+
+
+def test_label_boundary_finds_where_rows_of_one_class_sit_on_another():
+    from lift3d.sfm.planes import label_boundary
+
+    sem = np.array([[3, 3, 3], [3, 3, 1], [1, 3, 1], [1, 1, 1], [1, 1, 1]])
+    # column 0: ceiling rows 0-1 on wall rows 2-3; column 1: rows 1-2 on 3-4; column 2 has one ceiling row only
+    r, c = label_boundary(sem, [3], [1], min_rows=2, same="lower")
+    assert sorted(zip(r.tolist(), c.tolist())) == [(1, 0), (2, 1)]
+    with pytest.raises(ValueError, match="same must be"):
+        label_boundary(sem, [3], [1], same="left")

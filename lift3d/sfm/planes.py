@@ -497,6 +497,8 @@ def label_boundary(sem: np.ndarray, upper, lower, min_rows: int = 2, same: str =
     rows, cols : np.ndarray
         The last ``upper`` row of each boundary and its column.
     """
+    if same not in ("upper", "lower"):
+        raise ValueError(f"label_boundary: same must be 'upper' or 'lower', not {same!r}")
     h, _ = sem.shape
     k = min_rows
     if h < 2 * k:
