@@ -773,16 +773,7 @@ def profile_markdown(prof: dict) -> list[str]:
         f"11–25 ms at best; the render median above is {_f(prof['render_ms'] / 25.0, 1)}–"
         f"{_f(prof['render_ms'] / 11.0, 1)} × that floor. The paper renders 2048 rays in 26.7 ms on an RTX 3090.",
         "",
-        "To reproduce the render figure through the public API (after warm-up; docs/api.md):",
-        "",
-        "```python",
-        "import time, numpy as np, lift3d",
-        "run = lift3d.load_run(\"outputs/room0/fast/<run>\", device=\"cpu\")",
-        "# 2048 world-frame rays, e.g. from the scene's centre (or a camera) in every direction",
-        "origins, directions = np.zeros((2048, 3)), np.random.default_rng(0).normal(size=(2048, 3))",
-        "run.render_rays(origins, directions)                   # warm-up (first use builds the C++ kernels)",
-        "t0 = time.perf_counter(); run.render_rays(origins, directions); print(time.perf_counter() - t0)",
-        "```",
+        "How to time the render figure on a run of your own through the public API is at the end of this page.",
     ]
     for key, title in (("train", "training step"), ("render", "render of 2048 rays")):
         block = prof[key]
