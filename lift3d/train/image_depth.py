@@ -339,6 +339,7 @@ def _ceiling_plane(scene: Scene, frames, labels, planes, up, stuff, cfg: ImageDe
                    min_points: int):
     """The planes and, when the labels' ceiling-on-wall boundaries and the walls found give the ceiling's height,
     a horizontal ceiling plane there over the points where the ceiling pixels' rays meet it (docs/sfm.md)."""
+    # here, not at module level: keeps `import lift3d.train` cheap (lift3d.sfm loads OpenCV)
     from lift3d.sfm.planes import ceiling_height, ceiling_points
 
     level = np.abs(planes.normal @ up) > np.cos(np.radians(25))
