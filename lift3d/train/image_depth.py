@@ -275,16 +275,11 @@ def _plane_rows(scene: Scene, sparse: SparsePoints, dense: DenseDepth, frames: n
     min_points = max(cfg.plane_min_points, int(cfg.plane_min_share * n_stuff))
     planes = fit(thinned, thinned_cls, cams, seen_xyz)
     if cfg.plane_floor_boundary and len(planes):
-        # The floor (of the planes within 25° of level, the one with most points) fixes where the labels'
-        # wall-on-floor boundaries are in 3D: wall points without texture (lift3d.sfm.planes.floor_boundary_points).
-        # Fitted again with them.
-        # 25°: the fit levels its planes to its own refined up, which may differ from the cameras' mean up
-        level = np.abs(planes.normal @ up) > np.cos(np.radians(25))
-        if level.any():
-            f = int(np.flatnonzero(level)[np.argmax(planes.inliers[level])])
-            n, d = planes.normal[f], planes.offset[f]
-            if n @ up < 0:
-                n, d = -n, -d
+        # The floor fixes where the labels' wall-on-floor boundaries are in 3D: wall points without texture
+        # (lift3d.sfm.planes.floor_boundary_points). Fitted again with them.
+        floor = _floor_plane(planes, up)
+        if floor is not None:
+            f, n, d = floor
             walls = [c for c in stuff if c not in planes.classes[f]]
             height = float(np.percentile(thinned @ n + d, 99)) if len(thinned) else 0.0
             foot, foot_cls, foot_cam = floor_boundary_points(
@@ -293,9 +288,8 @@ def _plane_rows(scene: Scene, sparse: SparsePoints, dense: DenseDepth, frames: n
             info["floor_boundary_points"] = int(len(foot))
             if len(foot):
                 # thinning the thinned points again keeps them (one per cell and class already, first in order)
-                thinned, thinned_cls = thin(np.r_[thinned, foot], np.r_[thinned_cls, foot_cls])
-                cams, seen_xyz = np.r_[cams, foot_cam], np.r_[seen_xyz, foot]
-                planes = fit(thinned, thinned_cls, cams, seen_xyz)
+                planes = fit(*thin(np.r_[thinned, foot], np.r_[thinned_cls, foot_cls]), np.r_[cams, foot_cam],
+                             np.r_[seen_xyz, foot])
             if cfg.plane_ceiling_boundary and len(planes):
                 planes, found = _ceiling_plane(scene, frames, labels, planes, up, stuff, cfg, diag, min_points)
                 info.update(found)
@@ -335,6 +329,18 @@ def _plane_rows(scene: Scene, sparse: SparsePoints, dense: DenseDepth, frames: n
     return rows, info
 
 
+def _floor_plane(planes, up: np.ndarray) -> tuple[int, np.ndarray, float] | None:
+    """``(index, normal, offset)`` of the floor, the normal turned up: of the planes within 25° of level, the one
+    with most points (25°: the fit levels its planes to its own refined up, which may differ from the cameras'
+    mean up). None without a level plane."""
+    level = np.abs(planes.normal @ up) > np.cos(np.radians(25))
+    if not level.any():
+        return None
+    f = int(np.flatnonzero(level)[np.argmax(planes.inliers[level])])
+    n, d = planes.normal[f], float(planes.offset[f])
+    return (f, -n, -d) if n @ up < 0 else (f, n, d)
+
+
 def _ceiling_plane(scene: Scene, frames, labels, planes, up, stuff, cfg: ImageDepthConfig, diag: float,
                    min_points: int):
     """The planes and, when the labels' ceiling-on-wall boundaries and the walls found give the ceiling's height,
@@ -342,13 +348,10 @@ def _ceiling_plane(scene: Scene, frames, labels, planes, up, stuff, cfg: ImageDe
     # here, not at module level: keeps `import lift3d.train` cheap (lift3d.sfm loads OpenCV)
     from lift3d.sfm.planes import ceiling_height, ceiling_points
 
-    level = np.abs(planes.normal @ up) > np.cos(np.radians(25))
-    if not level.any():
+    floor = _floor_plane(planes, up)
+    if floor is None:
         return planes, {}
-    f = int(np.flatnonzero(level)[np.argmax(planes.inliers[level])])
-    n, d = planes.normal[f], planes.offset[f]
-    if n @ up < 0:
-        n, d = -n, -d
+    _, n, d = floor
     # stuff no plane holds yet (a ceiling with enough texture has its plane from stereo already); each class on
     # its own, so that a window above a wall (its sill is no ceiling) cannot pull a ceiling's height
     found: dict[str, Any] = {"ceiling_boundary_points": 0, "ceiling_height": None}
