@@ -287,6 +287,21 @@ def test_plane_targets_give_stuff_pixels_their_depth_and_are_recorded(floor_room
     assert len(sparse) == (~plane).sum()
 
 
+def test_the_ceiling_step_runs_with_or_without_the_floor_line(floor_room):
+    # The ceiling plane needs walls, not the floor-line points: turning the floor line off must not turn the
+    # ceiling step off with it (it used to run only inside the floor-line step).
+    scene = load_scene(floor_room)
+    frames = scene.split("train")
+    for floor_line in (True, False):
+        info = image_depth_targets(scene, frames, ImageDepthConfig(source="planes", plane_stride=2,
+                                                                   plane_floor_boundary=floor_line)).info["planes"]
+        assert ("floor_boundary_points" in info) == floor_line
+        assert "ceiling_boundary_points" in info
+    off = image_depth_targets(scene, frames, ImageDepthConfig(source="planes", plane_stride=2,
+                                                              plane_ceiling_boundary=False)).info["planes"]
+    assert "ceiling_boundary_points" not in off
+
+
 def test_label_boundary_finds_where_rows_of_one_class_sit_on_another():
     from lift3d.sfm.planes import label_boundary
 

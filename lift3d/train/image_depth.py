@@ -290,9 +290,10 @@ def _plane_rows(scene: Scene, sparse: SparsePoints, dense: DenseDepth, frames: n
                 # thinning the thinned points again keeps them (one per cell and class already, first in order)
                 planes = fit(*thin(np.r_[thinned, foot], np.r_[thinned_cls, foot_cls]), np.r_[cams, foot_cam],
                              np.r_[seen_xyz, foot])
-            if cfg.plane_ceiling_boundary and len(planes):
-                planes, found = _ceiling_plane(scene, frames, labels, planes, up, stuff, cfg, diag, min_points)
-                info.update(found)
+    if cfg.plane_ceiling_boundary and len(planes):
+        # walls from stereo alone are enough to place a ceiling: this does not need the floor line
+        planes, found = _ceiling_plane(scene, frames, labels, planes, up, stuff, cfg, diag, min_points)
+        info.update(found)
     info.update(planes=len(planes), classes=[sorted(c) for c in planes.classes], stuff_points=n_stuff,
                 points_on_planes=int(planes.inliers.sum()),
                 median_rms=round(float(np.median(planes.rms)), 4) if len(planes) else None)
