@@ -120,10 +120,7 @@ class StuffPlanes:
         t_best = np.full(r, np.inf)
         best = np.full(r, -1, np.int64)
         for k in range(len(self)):
-            n, d = self.normal[k], self.offset[k]
-            cos = directions @ n
-            with np.errstate(divide="ignore", invalid="ignore"):
-                t = -(origins @ n + d) / cos
+            t, cos = ray_plane_distance(origins, directions, self.normal[k], self.offset[k])
             ok = (np.abs(cos) >= min_cos) & (t > t_min) & (t < t_best)
             if not ok.any():
                 continue
@@ -144,6 +141,36 @@ class StuffPlanes:
             t_best[idx] = t[idx]
             best[idx] = k
         return t_best, best
+
+
+def ray_plane_distance(origins: np.ndarray, directions: np.ndarray, normal: np.ndarray,
+                       offset: float) -> tuple[np.ndarray, np.ndarray]:
+    """Where rays meet the plane ``normal · x + offset = 0``.
+
+    Parameters
+    ----------
+    origins, directions : np.ndarray
+        ``[R, 3]`` rays (``t`` is in units of the directions' length).
+    normal, offset : np.ndarray, float
+        The plane (unit normal).
+
+    Returns
+    -------
+    t : np.ndarray
+        ``[R]`` ray parameter of the meeting point: negative behind the origin, ``±inf`` or NaN for rays
+        parallel to the plane.
+    cos : np.ndarray
+        ``[R]`` ``directions · normal`` (the cosine to the normal for unit directions).
+
+    Examples
+    --------
+    >>> t, cos = ray_plane_distance(np.array([[0.0, 0, 2]]), np.array([[0.0, 0, -1]]), np.array([0, 0, 1.0]), 0.0)
+    >>> t.tolist(), cos.tolist()
+    ([2.0], [-1.0])
+    """
+    cos = directions @ normal
+    with np.errstate(divide="ignore", invalid="ignore"):
+        return -(origins @ normal + offset) / cos, cos
 
 
 def point_classes(obs_point: np.ndarray, obs_class: np.ndarray, num_points: int,
@@ -357,9 +384,8 @@ def floor_boundary_points(cameras, frames, labels: dict[int, np.ndarray], normal
         if not len(r):
             continue
         o, d = cameras.rays(i, c.astype(np.float64), r + 0.5)
-        denom = d @ normal
+        t, denom = ray_plane_distance(o, d, normal, offset)
         with np.errstate(divide="ignore", invalid="ignore"):
-            t = -(o @ normal + offset) / denom
             # one pixel turns the ray by ~1/f; along the floor the foot moves t/f / sin(grazing angle)
             slip = t / (min(cameras.fx[i], cameras.fy[i]) * np.abs(denom))
         ok = np.isfinite(t) & (t > 0) & (denom < 0) & (slip < tolerance)
@@ -470,8 +496,7 @@ def ceiling_points(cameras, frames, labels: dict[int, np.ndarray], normal: np.nd
         if not len(r):
             continue
         o, d = cameras.rays(i, (c * stride + stride // 2).astype(np.float64), (r * stride + stride // 2).astype(np.float64))
-        with np.errstate(divide="ignore", invalid="ignore"):
-            t = -(o @ normal + offset) / (d @ normal)
+        t, _ = ray_plane_distance(o, d, normal, offset)
         ok = np.isfinite(t) & (t > 0)
         out_xyz.append(o[ok] + t[ok, None] * d[ok])
         out_cls.append(sem[r[ok], c[ok]].astype(np.int64))
