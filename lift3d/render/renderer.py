@@ -54,7 +54,8 @@ class SamplingConfig:
     """Samples per ray evaluated together between two early-termination checks."""
     termination_in_training: bool = False
     """Training renders terminate rays early too (the skipped samples' weights are below
-    ``termination_transmittance``). Off until its effect on accuracy is measured: training stays exact."""
+    ``termination_transmittance``). Off: on an indoor room with sensor depth (`fast`, one run each) steps were no
+    faster (352 against 336 ms after step 300: the block-wise passes cost what the skipped samples save)."""
     head_weight_threshold: float = 1e-4
     """Colour/label decoders run only on samples whose weight exceeds this (0 = all samples)."""
     label_max_samples: int = 8
