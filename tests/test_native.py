@@ -3,6 +3,7 @@ to that path (with a one-line warning) when they cannot be built."""
 
 from __future__ import annotations
 
+import math
 import warnings
 
 import pytest
@@ -84,7 +85,137 @@ def test_fused_mlp_matches_torch(shape):
     with torch.no_grad():
         assert torch.allclose(run_mlp(mlp, x), mlp(x), atol=1e-4)
         assert run_mlp(mlp, x[:0]).shape == (0, out_dim)
-    assert run_mlp(mlp, x).requires_grad  # with autograd: torch's own layers
+    assert run_mlp(mlp, x).requires_grad  # with autograd: the training kernels (tested below)
+
+
+@needs_kernels
+@pytest.mark.parametrize("shape,rows,cols", [((27, 64, 16, 1), 1003, 12), ((31, 64, 3, 2), 97, 31),
+                                             ((54, 33, 22, 2), 5, 0), ((8, 16, 4, 3), 0, 8)])
+def test_training_mlp_kernels_match_torch_autograd(shape, rows, cols):
+    """Forward, weight/bias gradients and the gradient of the input's first ``cols`` columns (none after)."""
+    in_dim, hidden, out_dim, layers = shape
+    torch.manual_seed(7)
+    mlp = make_mlp(in_dim, hidden, out_dim, layers)
+    x = torch.randn(rows, in_dim, requires_grad=cols > 0)
+    upstream = torch.randn(rows, out_dim)
+    y = run_mlp(mlp, x, grad_columns=cols)
+    y.backward(upstream)
+    fused = [p.grad.clone() for p in mlp.parameters()]
+    for p in mlp.parameters():
+        p.grad = None
+    x_ref = x.detach().clone().requires_grad_(cols > 0)
+    y_ref = mlp(torch.cat([x_ref[:, :cols], x_ref[:, cols:].detach()], 1))
+    y_ref.backward(upstream)
+    assert torch.allclose(y, y_ref, atol=1e-5)
+    for a, b in zip(fused, (p.grad for p in mlp.parameters())):
+        assert torch.allclose(a, b, atol=1e-4, rtol=1e-4)
+    if cols:
+        assert torch.allclose(x.grad, x_ref.grad, atol=1e-5)
+        assert x.grad[:, cols:].abs().sum() == 0
+
+
+@needs_kernels
+def test_training_mlp_kernels_are_deterministic_across_thread_counts():
+    mlp = make_mlp(27, 64, 16, 1)
+    x = torch.randn(5000, 27, generator=torch.Generator().manual_seed(1))
+    grads = []
+    threads = torch.get_num_threads()
+    try:
+        for n in (1, 2, 3):
+            torch.set_num_threads(n)
+            mlp.zero_grad()
+            run_mlp(mlp, x).pow(2).sum().backward()
+            grads.append([p.grad.clone() for p in mlp.parameters()])
+    finally:
+        torch.set_num_threads(threads)
+    for other in grads[1:]:
+        assert all(torch.equal(a, b) for a, b in zip(grads[0], other))
+
+
+def _marching_inputs(field, n_rays=40, n_samples=24):
+    g = torch.Generator().manual_seed(9)
+    with torch.no_grad():
+        for t in field.grid.tables:
+            t.normal_(0, 2.0, generator=g)
+    u = torch.rand(n_rays * n_samples, 3, generator=g)
+    valid = torch.rand(n_rays, n_samples, generator=g) > 0.2
+    deltas = torch.rand(n_rays, n_samples, generator=g) * 0.05
+    return u, valid, deltas
+
+
+@needs_kernels
+def test_marching_equals_the_geometry_at_every_valid_sample():
+    field = _tiny_model().field
+    u, valid, deltas = _marching_inputs(field)
+    with torch.no_grad():
+        sigma, geo = field.march(u, valid, deltas, float("inf"))  # no termination
+        ref_sigma, ref_geo, _ = field.geometry(u, space=(u, valid.reshape(-1)))
+    flat = valid.reshape(-1)
+    assert torch.allclose(sigma.reshape(-1), ref_sigma, rtol=1e-5, atol=1e-6)
+    assert torch.allclose(geo[flat], ref_geo[flat], atol=1e-5)
+    assert geo[~flat].abs().sum() == 0
+
+
+@needs_kernels
+def test_marching_stops_a_ray_once_its_transmittance_is_negligible():
+    field = _tiny_model().field
+    u, valid, deltas = _marching_inputs(field)
+    eps = 1e-3
+    with torch.no_grad():
+        sigma, _ = field.march(u, valid, deltas, -math.log(eps))
+        full, _ = field.march(u, valid, deltas, float("inf"))
+    skipped = valid & (sigma == 0) & (full > 0)
+    assert skipped.any()
+    # Every skipped sample lies behind the point where the evaluated samples made the ray opaque ...
+    optical_before = torch.cumsum(sigma * deltas, 1) - sigma * deltas
+    assert (optical_before[skipped] >= -math.log(eps)).all()
+    # ... and skipping changes the rendered weights by less than the threshold.
+    from lift3d.render.volume import render_weights
+    assert (render_weights(sigma, deltas)[0] - render_weights(full, deltas)[0]).abs().max() < eps
+    with torch.enable_grad():
+        assert field.march(u, valid, deltas, 1.0) is None  # training takes the differentiable path
+
+
+@needs_kernels
+def test_fused_compositing_equals_decoding_and_summing():
+    from lift3d.render.renderer import ray_starts
+
+    model = _tiny_model()
+    field = model.field
+    u, valid, deltas = _marching_inputs(field, n_rays=30, n_samples=10)
+    g = torch.Generator().manual_seed(11)
+    with torch.no_grad():
+        for t in field.understanding_grid.tables:
+            t.normal_(0, 1.0, generator=g)
+        _, geo = field.march(u, torch.ones_like(valid), deltas, float("inf"))
+        dirs = torch.nn.functional.normalize(torch.randn(30, 3, generator=g), dim=-1)
+        sample = torch.sort(torch.randperm(300, generator=g)[:120]).values
+        sample = sample[(sample // 10) % 7 != 3]  # some rays choose no sample
+        ray = sample // 10
+        w = torch.rand(len(sample), generator=g)
+        start = ray_starts(ray, 30)
+        rgb = field.composite_color(geo, dirs, sample, start, w)
+        sem, inst = field.composite_labels(u, geo, sample, start, w)
+        rgb_ref = torch.zeros(30, 3).index_add_(0, ray, w[:, None] * field.color(geo[sample], dirs[ray]))
+        s_ref, i_ref = field.labels(u[sample], geo[sample])
+        sem_ref = torch.zeros(30, s_ref.shape[1]).index_add_(0, ray, w[:, None] * s_ref)
+        inst_ref = torch.zeros(30, i_ref.shape[1]).index_add_(0, ray, w[:, None] * i_ref)
+    assert torch.allclose(rgb, rgb_ref, atol=1e-5)
+    assert torch.allclose(sem, sem_ref, atol=1e-4) and torch.allclose(inst, inst_ref, atol=1e-4)
+    assert (rgb[(torch.arange(30) % 7) == 3] == 0).all()
+
+
+@needs_kernels
+def test_fused_paths_step_aside_for_a_replaced_method():
+    """A field whose geometry or labels were replaced (a subclass, a test double) renders through them."""
+    field = _tiny_model().field
+    u, valid, deltas = _marching_inputs(field)
+    field.geometry = lambda x, space=None: (torch.zeros(len(x)), torch.zeros(len(x), 15), x)
+    field.labels = lambda u, geo: (torch.zeros(len(u), 4), None)
+    with torch.no_grad():
+        assert field.march(u, valid, deltas, 1.0) is None
+        assert field.composite_labels(u, torch.zeros(len(u), 15), torch.arange(3), torch.tensor([0, 3]),
+                                      torch.ones(3)) is None
 
 
 @needs_kernels

@@ -205,10 +205,12 @@ def test_exploding_learning_rate_is_detected_and_checkpoint_kept(tiny_indoor, tm
 
 
 def test_a_finite_but_exploding_loss_is_detected_too(tiny_indoor, tmp_path):
-    """lr 1e12 keeps the loss finite (about 1e10: the field collapses) — still a divergence, not a result."""
+    """lr 1e9 keeps the loss and the parameters finite while the field collapses (the loss grows beyond 1000 x
+    its first value) — still a divergence, not a result. (At 1e12 hidden activations overflow within a few
+    steps, so whether the parameters stay finite depends on float rounding, not on the check under test.)"""
     from lift3d.errors import TrainingDiverged
 
-    overrides = _exploding(1e12)
+    overrides = _exploding(1e9)
     # RGB only: with L_depth's charge on light passing the measured surface the collapsed field's loss
     # overflows at this lr (the non-finite check, tested above) instead of staying finite.
     overrides.setdefault("losses", {}).update(depth=0.0)

@@ -69,6 +69,65 @@ class Field(nn.Module, ABC):
         Labels must not shape geometry: implementations read ``geo_feat`` detached.
         """
 
+    def march(self, u: Tensor, valid: Tensor, deltas: Tensor, max_depth: float) -> tuple[Tensor, Tensor] | None:
+        """An optional fused path for rendering without gradients: density and geometry features at the
+        samples of a batch of rays, taken in order along each ray, only where ``valid``, until the ray's
+        optical depth ``Σ σΔt`` reaches ``max_depth`` (early ray termination).
+
+        Parameters
+        ----------
+        u : Tensor
+            ``[R·S, 3]`` grid coordinates of the samples (ray-major, from :attr:`space`).
+        valid : Tensor
+            ``[R, S]`` bool, the field may have density there.
+        deltas : Tensor
+            ``[R, S]`` interval lengths.
+        max_depth : float
+            Optical depth at which a ray stops (``inf``: never).
+
+        Returns
+        -------
+        (sigma, geo_feat) or None
+            ``[R, S]`` densities and ``[R·S, F]`` features, 0 at the samples not evaluated; None when the field
+            has no such path here (the renderer then evaluates :meth:`geometry` block by block:
+            :func:`lift3d.render.renderer.geometry_where_needed`). None by default.
+        """
+        return None
+
+    def composite_color(self, geo_feat: Tensor, dirs: Tensor, sample: Tensor, ray_start: Tensor,
+                        weight: Tensor) -> Tensor | None:
+        """An optional fused path for rendering without gradients: ``Σ w · colour`` over the chosen samples
+        of every ray (what :meth:`color`, then a weighted sum per ray, give).
+
+        Parameters
+        ----------
+        geo_feat : Tensor
+            ``[N, F]`` geometry features, a row per sample (as :meth:`march` returns them).
+        dirs : Tensor
+            ``[R, 3]`` unit view direction of each ray.
+        sample : Tensor
+            ``[K]`` int64 row of ``geo_feat`` of each chosen sample; ray ``r``'s samples are
+            ``sample[ray_start[r]:ray_start[r + 1]]``.
+        ray_start : Tensor
+            ``[R + 1]`` int64, non-decreasing.
+        weight : Tensor
+            ``[K]`` rendering weight of each chosen sample.
+
+        Returns
+        -------
+        Tensor or None
+            ``[R, 3]``; None when the field has no such path here (the renderer then decodes and sums with
+            torch operators). None by default.
+        """
+        return None
+
+    def composite_labels(self, u: Tensor, geo_feat: Tensor, sample: Tensor, ray_start: Tensor,
+                         weight: Tensor) -> tuple[Tensor, Tensor | None] | None:
+        """As :meth:`composite_color` for :meth:`labels`: ``Σ w · semantic logits`` ``[R, U]`` and
+        ``Σ w · instance logits`` ``[R, V]`` (None without an instance head) over the chosen samples of every
+        ray; ``u`` ``[N, 3]`` grid coordinates, a row per sample like ``geo_feat``. None by default."""
+        return None
+
     @property
     @abstractmethod
     def has_instances(self) -> bool:

@@ -16,6 +16,7 @@ from typing import TYPE_CHECKING, Callable
 import torch
 from torch import Tensor
 
+from lift3d.field import native
 from lift3d.field.base import Field
 from lift3d.field.encodings import positional_encoding_dim, spherical_harmonics
 from lift3d.field.grids import DenseGrid, default_resolutions
@@ -186,7 +187,7 @@ class GridField(Field):
         u, valid = self.space(x) if space is None else space
         # [grid features | positional encoding]: the density decoder's input in one matrix.
         h = self.grid.encode(u, self.cfg.grid.position_frequencies)
-        out = run_mlp(self.density_mlp, h)
+        out = run_mlp(self.density_mlp, h, grad_columns=self.grid.out_dim)  # (no gradient for the encoding)
         # The first channel of every grid level adds to the raw density directly (as a DVGO/Plenoxels
         # density grid would): surfaces form within a few hundred steps instead of waiting for the
         # decoder's output layer to grow.
@@ -194,9 +195,69 @@ class GridField(Field):
         sigma = density_activation(out[:, 0] + direct + self.cfg.density_bias) * valid
         return sigma, out[:, 1:], u
 
+    def _computes(self, *methods: str) -> bool:
+        """These methods are GridField's own (not replaced on the instance or in a subclass): only then do the
+        fused paths below compute what they would."""
+        return all(m not in self.__dict__ and getattr(type(self), m) is getattr(GridField, m) for m in methods)
+
+    def march(self, u: Tensor, valid: Tensor, deltas: Tensor, max_depth: float) -> tuple[Tensor, Tensor] | None:
+        """:meth:`Field.march` by the C++ kernels (CPU, float32, no gradients, :meth:`geometry` not replaced;
+        None otherwise)."""
+        tables = list(self.grid.tables[: self.grid.active_levels])
+        if torch.is_grad_enabled() or not tables or not self._computes("geometry"):
+            return None
+        ext = native.usable(u, deltas, tables[0])
+        if ext is None:
+            return None
+        linear = [m for m in self.density_mlp if isinstance(m, torch.nn.Linear)]
+        sigma = torch.empty_like(deltas)
+        geo = u.new_empty(u.shape[0], linear[-1].out_features - 1)
+        ext.march_density(u.contiguous(), valid.contiguous(), deltas.contiguous(), [t.detach() for t in tables],
+                          list(self.grid.resolutions[: len(tables)]), len(self.grid.resolutions),
+                          self.cfg.grid.position_frequencies, [m.weight.detach() for m in linear],
+                          [m.bias.detach() for m in linear], float(self.cfg.density_bias), float(max_depth), sigma, geo)
+        return sigma, geo
+
+    def composite_color(self, geo_feat: Tensor, dirs: Tensor, sample: Tensor, ray_start: Tensor,
+                        weight: Tensor) -> Tensor | None:
+        """:meth:`Field.composite_color` by the C++ kernels (CPU, float32, no gradients, :meth:`color` not
+        replaced; None otherwise)."""
+        ext = None if torch.is_grad_enabled() or not self._computes("color") else native.usable(geo_feat, dirs, weight)
+        if ext is None:
+            return None
+        out = geo_feat.new_empty(dirs.shape[0], 3)
+        linear = [m for m in self.color_mlp if isinstance(m, torch.nn.Linear)]
+        ext.decode_composite(ray_start, sample.contiguous(), weight.contiguous(), geo_feat.new_empty(0, 3), geo_feat,
+                             dirs.contiguous(), 0, self.cfg.sh_degree, [], [], 0, 0,
+                             [m.weight.detach() for m in linear], [m.bias.detach() for m in linear], [len(linear)],
+                             True, [out])
+        return out
+
+    def composite_labels(self, u: Tensor, geo_feat: Tensor, sample: Tensor, ray_start: Tensor,
+                         weight: Tensor) -> tuple[Tensor, Tensor | None] | None:
+        """:meth:`Field.composite_labels` by the C++ kernels (CPU, float32, no gradients, the label decoders
+        reading the geometry features, :meth:`labels` not replaced; None otherwise)."""
+        g = self.cfg.grid
+        tables = list(self.understanding_grid.tables[: self.understanding_grid.active_levels])
+        fusable = not torch.is_grad_enabled() and g.head_uses_geometry and tables and self._computes("labels")
+        ext = native.usable(u, geo_feat, weight, tables[0]) if fusable else None
+        if ext is None:
+            return None
+        heads = [self.semantic_mlp] + ([self.instance_mlp] if self.instance_mlp is not None else [])
+        linear = [[m for m in head if isinstance(m, torch.nn.Linear)] for head in heads]
+        outs = [u.new_empty(ray_start.shape[0] - 1, layers[-1].out_features) for layers in linear]
+        ext.decode_composite(ray_start, sample.contiguous(), weight.contiguous(), u.contiguous(), geo_feat,
+                             u.new_empty(0, 3), 1, 0, [t.detach() for t in tables],
+                             list(self.understanding_grid.resolutions[: len(tables)]),
+                             len(self.understanding_grid.resolutions), g.head_position_frequencies,
+                             [m.weight.detach() for layers in linear for m in layers],
+                             [m.bias.detach() for layers in linear for m in layers], [len(layers) for layers in linear],
+                             False, outs)
+        return outs[0], (outs[1] if len(outs) > 1 else None)
+
     def color(self, geo_feat: Tensor, dirs: Tensor) -> Tensor:
         h = torch.cat([geo_feat, spherical_harmonics(dirs, self.cfg.sh_degree)], dim=-1)
-        return torch.sigmoid(run_mlp(self.color_mlp, h))
+        return torch.sigmoid(run_mlp(self.color_mlp, h, grad_columns=geo_feat.shape[1]))
 
     def labels(self, u: Tensor, geo_feat: Tensor) -> tuple[Tensor, Tensor | None]:
         g = self.cfg.grid
@@ -204,5 +265,6 @@ class GridField(Field):
         if g.head_uses_geometry:
             parts.append(geo_feat.detach())
         h = torch.cat(parts, dim=-1) if len(parts) > 1 else parts[0]
-        inst = run_mlp(self.instance_mlp, h) if self.instance_mlp is not None else None
-        return run_mlp(self.semantic_mlp, h), inst
+        cols = self.understanding_grid.out_dim  # the rest (encoding, detached geometry) needs no gradient
+        inst = run_mlp(self.instance_mlp, h, grad_columns=cols) if self.instance_mlp is not None else None
+        return run_mlp(self.semantic_mlp, h, grad_columns=cols), inst

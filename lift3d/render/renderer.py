@@ -117,6 +117,18 @@ def _composite(n_rays: int, ray: Tensor, weighted: Tensor) -> Tensor:
     """
     return weighted.new_zeros(n_rays, weighted.shape[1]).index_add(0, ray, weighted)
 
+def ray_starts(ray: Tensor, n_rays: int) -> Tensor:
+    """Where each ray's entries begin in a list sorted by ray: ``ray`` ``[K]`` non-decreasing ray index →
+    ``[n_rays + 1]`` int64, ray ``r``'s entries at ``[start[r], start[r + 1])``.
+
+    Examples
+    --------
+    >>> ray_starts(torch.tensor([0, 0, 2, 2, 2]), 4).tolist()
+    [0, 2, 2, 5, 5]
+    """
+    return torch.searchsorted(ray, torch.arange(n_rays + 1, device=ray.device, dtype=ray.dtype))
+
+
 def render_rays(
     field: Field,
     proposals: nn.ModuleList,
@@ -221,9 +233,14 @@ def render_rays(
         idx = (w_flat > cfg.head_weight_threshold).nonzero().squeeze(1)
         ray = torch.div(idx, n_samples, rounding_mode="floor")
         rows = idx if geo_row is None else geo_row.index_select(0, idx)
+    # Without gradients, and with a row of features per sample, a field may decode and sum in one pass.
+    fused = geo_row is None and not torch.is_grad_enabled()
     with record_function("render.field_color"):
-        rgb_k = field.color(geo.index_select(0, rows), dirs.index_select(0, ray))
-    rgb = _composite(n_rays, ray, w_flat.index_select(0, idx)[:, None] * rgb_k)
+        rgb = field.composite_color(geo, dirs, idx, ray_starts(ray, n_rays), w_flat.index_select(0, idx)) \
+            if fused else None
+        if rgb is None:
+            rgb_k = field.color(geo.index_select(0, rows), dirs.index_select(0, ray))
+            rgb = _composite(n_rays, ray, w_flat.index_select(0, idx)[:, None] * rgb_k)
     opacity = weights.sum(-1)
 
     if background is None:
@@ -246,12 +263,16 @@ def render_rays(
                 lrows = lidx if geo_row is None else geo_row.index_select(0, lidx)
         else:
             lidx, lray, lrows = idx, ray, rows
+        lw = w_det.reshape(-1).index_select(0, lidx)
         with record_function("render.field_labels"):
-            sem_s, inst_s = field.labels(u.index_select(0, lidx), geo.index_select(0, lrows))
-        lw = w_det.reshape(-1).index_select(0, lidx)[:, None]
-        semantic = _composite(n_rays, lray, lw * sem_s)
-        if inst_s is not None:
-            instance = _composite(n_rays, lray, lw * inst_s)
+            labels = field.composite_labels(u, geo, lidx, ray_starts(lray, n_rays), lw) if fused else None
+            if labels is not None:
+                semantic, instance = labels
+            else:
+                sem_s, inst_s = field.labels(u.index_select(0, lidx), geo.index_select(0, lrows))
+                semantic = _composite(n_rays, lray, lw[:, None] * sem_s)
+                if inst_s is not None:
+                    instance = _composite(n_rays, lray, lw[:, None] * inst_s)
 
     distill = weights.new_zeros(())
     if training and prop_levels:
@@ -297,6 +318,8 @@ def geometry_where_needed(field: Field, x: Tensor, u: Tensor, valid: Tensor, del
     unobserved, empty in the occupancy grid) are skipped exactly. With ``eps > 0`` the samples are taken
     ``block`` at a time along the rays, and a ray stops once its transmittance is below ``eps``: every
     later sample's weight would be smaller than that (early ray termination). Skipped samples get σ = 0.
+    Without gradients a field's fused :meth:`~lift3d.field.base.Field.march` does the same in one pass when it
+    has one (the grid field on the CPU: then ``geo`` has a row per sample, zeros where not evaluated).
 
     Parameters
     ----------
@@ -325,6 +348,10 @@ def geometry_where_needed(field: Field, x: Tensor, u: Tensor, valid: Tensor, del
         ``[K]`` the flat sample index of each row of ``geo`` (None as for ``geo_row``).
     """
     n_rays, n_samples = valid.shape
+    if not torch.is_grad_enabled():
+        fused = field.march(u, valid, deltas, -math.log(eps) if eps > 0 else math.inf)
+        if fused is not None:
+            return fused[0], fused[1], None, None
     if eps <= 0 or block >= n_samples:
         if bool(valid.all()):
             sigma, geo, _ = field.geometry(x, space=(u, valid.reshape(-1)))

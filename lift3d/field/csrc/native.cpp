@@ -66,6 +66,17 @@ inline void lerp_row(const float* table, const Corners& c, float* out, int64_t c
   }
 }
 
+// One level's trilinear features of one point (the channel counts in use get unrolled loops).
+inline void lerp_level(const float* table, const Corners& c, float* out, int64_t channels) {
+  switch (channels) {
+    case 1: lerp_row<1>(table, c, out, 1); break;
+    case 2: lerp_row<2>(table, c, out, 2); break;
+    case 4: lerp_row<4>(table, c, out, 4); break;
+    case 8: lerp_row<8>(table, c, out, 8); break;
+    default: lerp_row<0>(table, c, out, channels);
+  }
+}
+
 void check_points(const at::Tensor& u, const char* name) {
   TORCH_CHECK(u.device().is_cpu() && u.scalar_type() == at::kFloat && u.dim() == 2 && u.size(1) == 3 &&
                   u.is_contiguous(),
@@ -112,14 +123,7 @@ void grid_forward(const at::Tensor& u, const std::vector<at::Tensor>& tables,
           for (int k = 0; k < 8; k += 2) __builtin_prefetch(tptr[l] + ahead.idx[k] * channels);
         }
         corners_of(up + 3 * i, resolutions[l], c);
-        float* dst = row + static_cast<int64_t>(l) * channels;
-        switch (channels) {
-          case 1: lerp_row<1>(tptr[l], c, dst, 1); break;
-          case 2: lerp_row<2>(tptr[l], c, dst, 2); break;
-          case 4: lerp_row<4>(tptr[l], c, dst, 4); break;
-          case 8: lerp_row<8>(tptr[l], c, dst, 8); break;
-          default: lerp_row<0>(tptr[l], c, dst, channels);
-        }
+        lerp_level(tptr[l], c, row + static_cast<int64_t>(l) * channels, channels);
       }
     }
   });
@@ -186,6 +190,30 @@ inline void sincos_pi(float xf, double& s, double& c) {
   c = (ch - sh) * (ch + sh);
 }
 
+// NeRF positional encoding of one point's x = 2u - 1 into row[0 : 3 (1 + 2 frequencies)]: [x, sin(2^k pi x),
+// cos(2^k pi x)] (k < frequencies, x/y/z fastest), the layout of lift3d.field.encodings.positional_encoding.
+inline void positional_row(const float* u, int64_t frequencies, float* row) {
+  float x[3];
+  for (int d = 0; d < 3; ++d) x[d] = u[d] * 2.f - 1.f;
+  for (int d = 0; d < 3; ++d) row[d] = x[d];
+  float* s = row + 3;
+  float* co = row + 3 + 3 * frequencies;
+  // sin and cos of pi x once (in double), then the double-angle formulas for 2^k pi x: a libm call per
+  // value cost more than the decoders here. The error doubles per octave; in double it stays below
+  // float rounding for the handful of frequencies used.
+  for (int d = 0; d < 3; ++d) {
+    double sv, cv;
+    sincos_pi(x[d], sv, cv);
+    for (int64_t k = 0; k < frequencies; ++k) {
+      s[3 * k + d] = static_cast<float>(sv);
+      co[3 * k + d] = static_cast<float>(cv);
+      const double s2 = 2.0 * sv * cv, c2 = (cv - sv) * (cv + sv);
+      sv = s2;
+      cv = c2;
+    }
+  }
+}
+
 // NeRF positional encoding of x = 2u - 1, [x, sin(2^k pi x), cos(2^k pi x)] (k < frequencies, x/y/z
 // fastest), written to out[:, col : col + 3 (1 + 2 frequencies)]; the layout of
 // lift3d.field.encodings.positional_encoding.
@@ -197,29 +225,41 @@ void positional_forward(const at::Tensor& u, int64_t frequencies, at::Tensor out
   float* op = out.data_ptr<float>();
   const int64_t ld = out.stride(0);
   at::parallel_for(0, n, kGrain, [&](int64_t begin, int64_t end) {
-    for (int64_t i = begin; i < end; ++i) {
-      float* row = op + i * ld + col;
-      float x[3];
-      for (int d = 0; d < 3; ++d) x[d] = up[3 * i + d] * 2.f - 1.f;
-      for (int d = 0; d < 3; ++d) row[d] = x[d];
-      float* s = row + 3;
-      float* co = row + 3 + 3 * frequencies;
-      // sin and cos of pi x once (in double), then the double-angle formulas for 2^k pi x: a libm call per
-      // value cost more than the decoders here. The error doubles per octave; in double it stays below
-      // float rounding for the handful of frequencies used.
-      for (int d = 0; d < 3; ++d) {
-        double sv, cv;
-        sincos_pi(x[d], sv, cv);
-        for (int64_t k = 0; k < frequencies; ++k) {
-          s[3 * k + d] = static_cast<float>(sv);
-          co[3 * k + d] = static_cast<float>(cv);
-          const double s2 = 2.0 * sv * cv, c2 = (cv - sv) * (cv + sv);
-          sv = s2;
-          cv = c2;
-        }
-      }
-    }
+    for (int64_t i = begin; i < end; ++i) positional_row(up + 3 * i, frequencies, op + i * ld + col);
   });
+}
+
+// Real spherical harmonics of one unit direction up to `degree` (0-3) into r[0 : (degree + 1)^2].
+inline void sh_row(const float* d, int64_t degree, float* r) {
+  const float C0 = 0.28209479177387814f, C1 = 0.4886025119029199f;
+  const float C2[5] = {1.0925484305920792f, -1.0925484305920792f, 0.31539156525252005f, -1.0925484305920792f,
+                       0.5462742152960396f};
+  const float C3[7] = {-0.5900435899266435f, 2.890611442640554f, -0.4570457994644658f, 0.3731763325901154f,
+                       -0.4570457994644658f, 1.445305721320277f, -0.5900435899266435f};
+  const float x = d[0], y = d[1], z = d[2];
+  r[0] = C0;
+  if (degree >= 1) {
+    r[1] = -C1 * y;
+    r[2] = C1 * z;
+    r[3] = -C1 * x;
+  }
+  if (degree >= 2) {
+    const float xx = x * x, yy = y * y, zz = z * z, xy = x * y, yz = y * z, xz = x * z;
+    r[4] = C2[0] * xy;
+    r[5] = C2[1] * yz;
+    r[6] = C2[2] * (2.f * zz - xx - yy);
+    r[7] = C2[3] * xz;
+    r[8] = C2[4] * (xx - yy);
+    if (degree >= 3) {
+      r[9] = C3[0] * y * (3.f * xx - yy);
+      r[10] = C3[1] * xy * z;
+      r[11] = C3[2] * y * (4.f * zz - xx - yy);
+      r[12] = C3[3] * z * (2.f * zz - 3.f * xx - 3.f * yy);
+      r[13] = C3[4] * x * (4.f * zz - xx - yy);
+      r[14] = C3[5] * z * (xx - yy);
+      r[15] = C3[6] * x * (xx - 3.f * yy);
+    }
+  }
 }
 
 // Real spherical harmonics of unit directions up to `degree` (0-3), written to
@@ -232,39 +272,8 @@ void sh_forward(const at::Tensor& dirs, int64_t degree, at::Tensor out, int64_t 
   const float* dp = dirs.data_ptr<float>();
   float* op = out.data_ptr<float>();
   const int64_t ld = out.stride(0);
-  const float C0 = 0.28209479177387814f, C1 = 0.4886025119029199f;
-  const float C2[5] = {1.0925484305920792f, -1.0925484305920792f, 0.31539156525252005f, -1.0925484305920792f,
-                       0.5462742152960396f};
-  const float C3[7] = {-0.5900435899266435f, 2.890611442640554f, -0.4570457994644658f, 0.3731763325901154f,
-                       -0.4570457994644658f, 1.445305721320277f, -0.5900435899266435f};
   at::parallel_for(0, n, kGrain, [&](int64_t begin, int64_t end) {
-    for (int64_t i = begin; i < end; ++i) {
-      const float x = dp[3 * i], y = dp[3 * i + 1], z = dp[3 * i + 2];
-      float* r = op + i * ld + col;
-      r[0] = C0;
-      if (degree >= 1) {
-        r[1] = -C1 * y;
-        r[2] = C1 * z;
-        r[3] = -C1 * x;
-      }
-      if (degree >= 2) {
-        const float xx = x * x, yy = y * y, zz = z * z, xy = x * y, yz = y * z, xz = x * z;
-        r[4] = C2[0] * xy;
-        r[5] = C2[1] * yz;
-        r[6] = C2[2] * (2.f * zz - xx - yy);
-        r[7] = C2[3] * xz;
-        r[8] = C2[4] * (xx - yy);
-        if (degree >= 3) {
-          r[9] = C3[0] * y * (3.f * xx - yy);
-          r[10] = C3[1] * xy * z;
-          r[11] = C3[2] * y * (4.f * zz - xx - yy);
-          r[12] = C3[3] * z * (2.f * zz - 3.f * xx - 3.f * yy);
-          r[13] = C3[4] * x * (4.f * zz - xx - yy);
-          r[14] = C3[5] * z * (xx - yy);
-          r[15] = C3[6] * x * (xx - 3.f * yy);
-        }
-      }
-    }
+    for (int64_t i = begin; i < end; ++i) sh_row(dp + 3 * i, degree, op + i * ld + col);
   });
 }
 
@@ -456,6 +465,7 @@ void proposal_resample(const at::Tensor& origins, const at::Tensor& dirs, const 
 
 typedef float v8f __attribute__((vector_size(32)));
 constexpr int kRows = 6;  // rows per register block (6 x 16 accumulators + 2 weight vectors + 1 broadcast: 15 of AVX2's 16 registers)
+constexpr int64_t kBlockRows = 8 * kRows;  // rows per cache block of the MLP kernels
 
 struct Layer {
   std::vector<float> w;  // [K][Npad] (input-major, columns padded to a multiple of 16 with zeros)
@@ -498,57 +508,525 @@ inline void layer_block(const Layer& L, const float* in, int64_t ldi, float* out
   }
 }
 
+inline int64_t round_up(int64_t v, int64_t m) { return (v + m - 1) / m * m; }
+
+// A torch.nn.Linear layer (weight [N, K], bias [N]) in the forward layout of layer_block: W^T [K][Npad].
+Layer pack_forward(const at::Tensor& weight, const at::Tensor& bias, int64_t k, size_t l) {
+  const at::Tensor w = weight.contiguous(), b = bias.contiguous();
+  TORCH_CHECK(w.device().is_cpu() && w.scalar_type() == at::kFloat && w.dim() == 2 && w.size(1) == k &&
+                  b.scalar_type() == at::kFloat && b.numel() == w.size(0),
+              "mlp: layer ", l, " does not fit its input (float32 weight [N, ", k, "], bias [N] expected)");
+  Layer L;
+  L.k = k;
+  L.n = w.size(0);
+  L.npad = round_up(L.n, 16);
+  L.w.assign(L.k * L.npad, 0.f);
+  L.b.assign(L.npad, 0.f);
+  const float* wp = w.data_ptr<float>();
+  for (int64_t o = 0; o < L.n; ++o)
+    for (int64_t i = 0; i < L.k; ++i) L.w[i * L.npad + o] = wp[o * L.k + i];
+  for (int64_t o = 0; o < L.n; ++o) L.b[o] = b.data_ptr<float>()[o];
+  return L;
+}
+
+// The same layer for the backward pass, grad_in = grad_out @ W, in layer_block's layout: W [N][Kpad] (no
+// bias), keeping only the first `cols` input columns.
+Layer pack_backward(const at::Tensor& weight, int64_t cols) {
+  const at::Tensor w = weight.contiguous();
+  Layer L;
+  L.k = w.size(0);
+  L.n = cols;
+  L.npad = round_up(cols, 16);
+  L.w.assign(L.k * L.npad, 0.f);
+  L.b.assign(L.npad, 0.f);
+  const float* wp = w.data_ptr<float>();
+  for (int64_t o = 0; o < L.k; ++o)
+    for (int64_t i = 0; i < cols; ++i) L.w[o * L.npad + i] = wp[o * w.size(1) + i];
+  return L;
+}
+
+std::vector<Layer> pack_mlp(const at::Tensor& x, const std::vector<at::Tensor>& weights,
+                            const std::vector<at::Tensor>& biases, int64_t& widest) {
+  TORCH_CHECK(x.device().is_cpu() && x.scalar_type() == at::kFloat && x.dim() == 2 && x.stride(1) == 1,
+              "mlp: x must be a float32 CPU matrix with unit column stride");
+  TORCH_CHECK(!weights.empty() && weights.size() == biases.size(), "mlp: one bias per weight");
+  std::vector<Layer> layers;
+  int64_t k = x.size(1);
+  widest = round_up(k, 16);
+  for (size_t l = 0; l < weights.size(); ++l) {
+    layers.push_back(pack_forward(weights[l], biases[l], k, l));
+    k = layers.back().n;
+    widest = std::max(widest, layers.back().npad);
+  }
+  return layers;
+}
+
+void check_rows(const at::Tensor& t, int64_t n, int64_t cols, const char* name) {
+  TORCH_CHECK(t.device().is_cpu() && t.scalar_type() == at::kFloat && t.dim() == 2 && t.size(0) == n &&
+                  t.size(1) >= cols && t.stride(1) == 1,
+              name, ": expected a float32 CPU matrix [", n, ", >= ", cols, "] with unit column stride");
+}
+
+// Copy rows [r0, r0 + rows) of src (columns [0, cols)) into a zeroed block [kBlockRows][ld].
+inline void load_block(const float* src, int64_t lds, int64_t r0, int64_t rows, int64_t cols, float* dst, int64_t ld) {
+  std::fill(dst, dst + kBlockRows * ld, 0.f);
+  for (int64_t r = 0; r < rows; ++r) std::copy(src + (r0 + r) * lds, src + (r0 + r) * lds + cols, dst + r * ld);
+}
+
+// ---------------------------------------------------------------------------------------------------
+// Training of the same MLPs. The forward also keeps every hidden activation (after its ReLU) for the
+// backward; the backward computes the weight and bias gradients and the gradient of the input's first
+// `grad_x_cols` columns (the rest of a decoder's input, positional encodings or detached features, needs
+// none), a block of rows at a time while the block stays in the cache. Weight gradients are summed per
+// chunk of rows and the chunks added in a fixed order, so the result does not depend on the thread count.
+
+constexpr int64_t kChunks = 8;             // row chunks of the weight-gradient sums
+
 // out[:, :N_last] = MLP(x) for torch.nn.Linear weights [N_i, K_i] and biases [N_i], ReLU between layers.
 void mlp_forward(const at::Tensor& x, const std::vector<at::Tensor>& weights, const std::vector<at::Tensor>& biases,
                  at::Tensor out) {
-  TORCH_CHECK(x.device().is_cpu() && x.scalar_type() == at::kFloat && x.dim() == 2 && x.stride(1) == 1,
-              "mlp_forward: x must be a float32 CPU matrix with unit column stride");
-  TORCH_CHECK(!weights.empty() && weights.size() == biases.size(), "mlp_forward: one bias per weight");
+  int64_t widest = 0;
+  const std::vector<Layer> layers = pack_mlp(x, weights, biases, widest);
   const int64_t n = x.size(0);
-  std::vector<Layer> layers(weights.size());
-  int64_t k = x.size(1), widest = k;
-  for (size_t l = 0; l < weights.size(); ++l) {
-    const at::Tensor w = weights[l].contiguous(), b = biases[l].contiguous();
-    TORCH_CHECK(w.scalar_type() == at::kFloat && w.dim() == 2 && w.size(1) == k && b.numel() == w.size(0),
-                "mlp_forward: layer ", l, " does not fit its input");
-    Layer& L = layers[l];
-    L.k = k;
-    L.n = w.size(0);
-    L.npad = (L.n + 15) / 16 * 16;
-    L.w.assign(L.k * L.npad, 0.f);
-    L.b.assign(L.npad, 0.f);
-    const float* wp = w.data_ptr<float>();
-    for (int64_t o = 0; o < L.n; ++o)
-      for (int64_t i = 0; i < L.k; ++i) L.w[i * L.npad + o] = wp[o * L.k + i];
-    for (int64_t o = 0; o < L.n; ++o) L.b[o] = b.data_ptr<float>()[o];
-    k = L.n;
-    widest = std::max(widest, L.npad);
-  }
-  TORCH_CHECK(out.device().is_cpu() && out.scalar_type() == at::kFloat && out.dim() == 2 && out.size(0) == n &&
-                  out.size(1) >= layers.back().n && out.stride(1) == 1,
-              "mlp_forward: out must be a float32 CPU matrix [N, >= ", layers.back().n, "] with unit column stride");
+  check_rows(out, n, layers.back().n, "mlp_forward (out)");
+  if (n == 0) return;
   const float* xp = x.data_ptr<float>();
   const int64_t ldx = x.stride(0);
   float* op = out.data_ptr<float>();
   const int64_t ldo = out.stride(0);
   const int64_t n_last = layers.back().n;
-  at::parallel_for(0, (n + kRows - 1) / kRows, 64, [&](int64_t begin, int64_t end) {
-    std::vector<float> a(kRows * widest, 0.f), b(kRows * widest, 0.f);
+  // kBlockRows rows go through one layer before the next layer starts: the layer's weights stay in the L1
+  // cache for all of them (the decoders' weights together do not fit).
+  at::parallel_for(0, (n + kBlockRows - 1) / kBlockRows, 1, [&](int64_t begin, int64_t end) {
+    std::vector<float> a(kBlockRows * widest), b(kBlockRows * widest);
     for (int64_t blk = begin; blk < end; ++blk) {
-      const int64_t r0 = blk * kRows;
-      const int64_t rows = std::min<int64_t>(kRows, n - r0);
-      // Input rows (a partial last block repeats its last row; only `rows` rows are written back).
-      for (int r = 0; r < kRows; ++r) {
-        const float* src = xp + (r0 + std::min<int64_t>(r, rows - 1)) * ldx;
-        std::copy(src, src + layers[0].k, a.data() + r * widest);
-      }
+      const int64_t r0 = blk * kBlockRows, rows = std::min(kBlockRows, n - r0);
+      load_block(xp, ldx, r0, rows, layers[0].k, a.data(), widest);
       float* cur = a.data();
       float* nxt = b.data();
       for (size_t l = 0; l < layers.size(); ++l) {
-        layer_block(layers[l], cur, widest, nxt, widest, l + 1 < layers.size());
+        for (int64_t r = 0; r < kBlockRows; r += kRows)
+          layer_block(layers[l], cur + r * widest, widest, nxt + r * widest, widest, l + 1 < layers.size());
         std::swap(cur, nxt);
       }
       for (int64_t r = 0; r < rows; ++r) std::copy(cur + r * widest, cur + r * widest + n_last, op + (r0 + r) * ldo);
+    }
+  });
+}
+
+// dw[o][i] += sum_r g[r][o] a[r][i] over a block of kBlockRows rows; o < rows of dw (a multiple of kRows),
+// i < ldw (a multiple of 16). g rows are ldg apart, a rows lda apart.
+inline void weight_grad_block(const float* g, int64_t ldg, const float* a, int64_t lda, float* dw, int64_t o_rows,
+                              int64_t ldw) {
+  for (int64_t o0 = 0; o0 < o_rows; o0 += kRows) {
+    for (int64_t i0 = 0; i0 < ldw; i0 += 16) {
+      v8f acc[kRows][2];
+      for (int j = 0; j < kRows; ++j) {
+        __builtin_memcpy(&acc[j][0], dw + (o0 + j) * ldw + i0, sizeof(v8f));
+        __builtin_memcpy(&acc[j][1], dw + (o0 + j) * ldw + i0 + 8, sizeof(v8f));
+      }
+      for (int64_t r = 0; r < kBlockRows; ++r) {
+        v8f a0, a1;
+        __builtin_memcpy(&a0, a + r * lda + i0, sizeof(v8f));
+        __builtin_memcpy(&a1, a + r * lda + i0 + 8, sizeof(v8f));
+        const float* gr = g + r * ldg + o0;
+        for (int j = 0; j < kRows; ++j) {
+          const float x = gr[j];
+          const v8f xv = {x, x, x, x, x, x, x, x};
+          acc[j][0] += xv * a0;
+          acc[j][1] += xv * a1;
+        }
+      }
+      for (int j = 0; j < kRows; ++j) {
+        __builtin_memcpy(dw + (o0 + j) * ldw + i0, &acc[j][0], sizeof(v8f));
+        __builtin_memcpy(dw + (o0 + j) * ldw + i0 + 8, &acc[j][1], sizeof(v8f));
+      }
+    }
+  }
+}
+
+// out = MLP(x) as mlp_forward, and hidden[l] = the activation after hidden layer l's ReLU.
+void mlp_forward_train(const at::Tensor& x, const std::vector<at::Tensor>& weights,
+                       const std::vector<at::Tensor>& biases, at::Tensor out, std::vector<at::Tensor> hidden) {
+  int64_t widest = 0;
+  const std::vector<Layer> layers = pack_mlp(x, weights, biases, widest);
+  const int64_t n = x.size(0);
+  TORCH_CHECK(hidden.size() + 1 == layers.size(), "mlp_forward_train: one hidden buffer per hidden layer");
+  check_rows(out, n, layers.back().n, "mlp_forward_train (out)");
+  for (size_t l = 0; l < hidden.size(); ++l) check_rows(hidden[l], n, layers[l].n, "mlp_forward_train (hidden)");
+  if (n == 0) return;
+  const float* xp = x.data_ptr<float>();
+  const int64_t ldx = x.stride(0);
+  std::vector<float*> dst;  // where each layer's output goes: the hidden buffers, then out
+  std::vector<int64_t> ld;
+  for (size_t l = 0; l < layers.size(); ++l) {
+    const at::Tensor& t = l + 1 < layers.size() ? hidden[l] : out;
+    dst.push_back(t.data_ptr<float>());
+    ld.push_back(t.stride(0));
+  }
+  at::parallel_for(0, (n + kBlockRows - 1) / kBlockRows, 1, [&](int64_t begin, int64_t end) {
+    std::vector<float> a(kBlockRows * widest), b(kBlockRows * widest);
+    for (int64_t blk = begin; blk < end; ++blk) {
+      const int64_t r0 = blk * kBlockRows, rows = std::min(kBlockRows, n - r0);
+      load_block(xp, ldx, r0, rows, layers[0].k, a.data(), widest);
+      float* cur = a.data();
+      float* nxt = b.data();
+      for (size_t l = 0; l < layers.size(); ++l) {
+        for (int64_t r = 0; r < kBlockRows; r += kRows)
+          layer_block(layers[l], cur + r * widest, widest, nxt + r * widest, widest, l + 1 < layers.size());
+        const int64_t cols = layers[l].n;
+        for (int64_t r = 0; r < rows; ++r) std::copy(nxt + r * widest, nxt + r * widest + cols, dst[l] + (r0 + r) * ld[l]);
+        std::swap(cur, nxt);
+      }
+    }
+  });
+}
+
+// Gradients of mlp_forward_train's output: grad_w[l] = dL/dW_l and grad_b[l] = dL/db_l (overwritten), and
+// grad_x[:, :grad_x_cols] = dL/dx[:, :grad_x_cols] when grad_x_cols > 0.
+void mlp_backward(const at::Tensor& x, const std::vector<at::Tensor>& hidden, const std::vector<at::Tensor>& weights,
+                  const at::Tensor& grad_out, std::vector<at::Tensor> grad_w, std::vector<at::Tensor> grad_b,
+                  at::Tensor grad_x, int64_t grad_x_cols) {
+  TORCH_CHECK(x.device().is_cpu() && x.scalar_type() == at::kFloat && x.dim() == 2 && x.stride(1) == 1,
+              "mlp_backward: x must be a float32 CPU matrix with unit column stride");
+  const size_t n_layers = weights.size();
+  TORCH_CHECK(n_layers > 0 && hidden.size() + 1 == n_layers && grad_w.size() == n_layers && grad_b.size() == n_layers,
+              "mlp_backward: one weight, weight gradient and bias gradient per layer, one hidden buffer per hidden layer");
+  const int64_t n = x.size(0);
+  std::vector<int64_t> k(n_layers), m(n_layers), kpad(n_layers), mpad(n_layers);
+  std::vector<Layer> back(n_layers);  // grad_in = grad_out @ W (layer 0: only the first grad_x_cols inputs)
+  int64_t widest = 16;
+  for (size_t l = 0; l < n_layers; ++l) {
+    const at::Tensor& w = weights[l];
+    TORCH_CHECK(w.device().is_cpu() && w.scalar_type() == at::kFloat && w.dim() == 2 &&
+                    w.size(1) == (l == 0 ? x.size(1) : m[l - 1]),
+                "mlp_backward: layer ", l, " does not fit its input");
+    k[l] = w.size(1);
+    m[l] = w.size(0);
+    kpad[l] = round_up(k[l], 16);
+    mpad[l] = std::max(round_up(m[l], 16), round_up(m[l], kRows));
+    widest = std::max({widest, kpad[l], mpad[l]});
+    TORCH_CHECK(grad_w[l].scalar_type() == at::kFloat && grad_w[l].is_contiguous() && grad_w[l].sizes() == w.sizes() &&
+                    grad_b[l].scalar_type() == at::kFloat && grad_b[l].is_contiguous() && grad_b[l].numel() == m[l],
+                "mlp_backward: gradient ", l, " must be contiguous float32 of its parameter's shape");
+    if (l > 0) {
+      check_rows(hidden[l - 1], n, k[l], "mlp_backward (hidden)");
+      back[l] = pack_backward(w, k[l]);
+    }
+  }
+  TORCH_CHECK(grad_x_cols >= 0 && grad_x_cols <= x.size(1), "mlp_backward: grad_x_cols out of range");
+  if (grad_x_cols > 0) {
+    check_rows(grad_x, n, grad_x_cols, "mlp_backward (grad_x)");
+    back[0] = pack_backward(weights[0], grad_x_cols);
+  }
+  check_rows(grad_out, n, m.back(), "mlp_backward (grad_out)");
+  // Per chunk of rows: the weight gradients [mpad][kpad] and bias gradients [mpad] of every layer.
+  std::vector<int64_t> offset(n_layers + 1, 0);
+  for (size_t l = 0; l < n_layers; ++l) offset[l + 1] = offset[l] + mpad[l] * kpad[l] + mpad[l];
+  const int64_t blocks = (n + kBlockRows - 1) / kBlockRows;
+  const int64_t chunks = std::max<int64_t>(1, std::min(kChunks, blocks));
+  std::vector<float> sums(chunks * offset[n_layers], 0.f);
+  const float* xp = x.data_ptr<float>();
+  const float* gp = grad_out.data_ptr<float>();
+  const int64_t ldgo = grad_out.stride(0), ldx = x.stride(0);
+  float* gx = grad_x_cols > 0 ? grad_x.data_ptr<float>() : nullptr;
+  const int64_t ldgx = grad_x_cols > 0 ? grad_x.stride(0) : 0;
+  std::vector<const float*> hp;
+  std::vector<int64_t> ldh;
+  for (const auto& h : hidden) {
+    hp.push_back(h.data_ptr<float>());
+    ldh.push_back(h.stride(0));
+  }
+  at::parallel_for(0, chunks, 1, [&](int64_t cbegin, int64_t cend) {
+    std::vector<float> g(kBlockRows * widest), gin(kBlockRows * widest), a(kBlockRows * widest);
+    for (int64_t c = cbegin; c < cend; ++c) {
+      float* acc = sums.data() + c * offset[n_layers];
+      for (int64_t blk = blocks * c / chunks; blk < blocks * (c + 1) / chunks; ++blk) {
+        const int64_t r0 = blk * kBlockRows, rows = std::min(kBlockRows, n - r0);
+        load_block(gp, ldgo, r0, rows, m.back(), g.data(), widest);
+        for (size_t l = n_layers; l-- > 0;) {
+          if (l == 0) {
+            load_block(xp, ldx, r0, rows, k[0], a.data(), widest);
+          } else {
+            load_block(hp[l - 1], ldh[l - 1], r0, rows, k[l], a.data(), widest);
+          }
+          float* dw = acc + offset[l];
+          float* db = dw + mpad[l] * kpad[l];
+          weight_grad_block(g.data(), widest, a.data(), widest, dw, round_up(m[l], kRows), kpad[l]);
+          for (int64_t r = 0; r < rows; ++r)
+            for (int64_t o = 0; o < m[l]; ++o) db[o] += g[r * widest + o];
+          if (l == 0 && grad_x_cols == 0) break;
+          for (int64_t r = 0; r < kBlockRows; r += kRows)
+            layer_block(back[l], g.data() + r * widest, widest, gin.data() + r * widest, widest, false);
+          if (l == 0) {
+            for (int64_t r = 0; r < rows; ++r)
+              std::copy(gin.data() + r * widest, gin.data() + r * widest + grad_x_cols, gx + (r0 + r) * ldgx);
+            break;
+          }
+          // Through the ReLU of hidden layer l - 1: its output (now in `a`) was positive where it passed.
+          for (int64_t r = 0; r < rows; ++r)
+            for (int64_t i = 0; i < k[l]; ++i)
+              if (!(a[r * widest + i] > 0.f)) gin[r * widest + i] = 0.f;
+          std::swap(g, gin);
+        }
+      }
+    }
+  });
+  // Chunks added in order (deterministic), written to the gradients' own layout.
+  for (size_t l = 0; l < n_layers; ++l) {
+    float* gw = grad_w[l].data_ptr<float>();
+    float* gb = grad_b[l].data_ptr<float>();
+    for (int64_t o = 0; o < m[l]; ++o) {
+      for (int64_t i = 0; i < k[l]; ++i) {
+        float s = 0.f;
+        for (int64_t c = 0; c < chunks; ++c) s += sums[c * offset[n_layers] + offset[l] + o * kpad[l] + i];
+        gw[o * k[l] + i] = s;
+      }
+      float s = 0.f;
+      for (int64_t c = 0; c < chunks; ++c) s += sums[c * offset[n_layers] + offset[l] + mpad[l] * kpad[l] + o];
+      gb[o] = s;
+    }
+  }
+}
+
+// ---------------------------------------------------------------------------------------------------
+// Rendering without gradients: the grid field's density and geometry features at the samples of each ray,
+// taken in order along the ray, only at valid samples, until the ray's optical depth reaches `max_depth`
+// (transmittance below exp(-max_depth): every later sample's weight would be smaller; early ray
+// termination). What lift3d.render.renderer.geometry_where_needed does block by block with a dozen operators
+// per block, in one pass: grid lookup of every level, positional encoding, the density decoder (a few rows
+// at a time: the ray's next kRows valid samples), the density activation, the termination test. Skipped
+// samples get sigma 0 and zero features. The arithmetic is GridField.geometry's.
+
+constexpr int64_t kAhead = 2;  // samples ahead on a ray whose grid rows are prefetched
+
+void march_density(const at::Tensor& u, const at::Tensor& valid, const at::Tensor& deltas,
+                   const std::vector<at::Tensor>& tables, const std::vector<int64_t>& resolutions, int64_t levels,
+                   int64_t frequencies, const std::vector<at::Tensor>& weights, const std::vector<at::Tensor>& biases,
+                   double density_bias, double max_depth, at::Tensor sigma, at::Tensor geo) {
+  check_points(u, "march_density");
+  TORCH_CHECK(valid.scalar_type() == at::kBool && valid.is_contiguous() && valid.dim() == 2,
+              "march_density: valid must be a contiguous bool [R, S]");
+  const int64_t n_rays = valid.size(0), n_samples = valid.size(1);
+  TORCH_CHECK(u.size(0) == n_rays * n_samples, "march_density: u must have R * S rows");
+  TORCH_CHECK(deltas.scalar_type() == at::kFloat && deltas.is_contiguous() && deltas.sizes() == valid.sizes(),
+              "march_density: deltas must be a contiguous float32 [R, S]");
+  TORCH_CHECK(sigma.scalar_type() == at::kFloat && sigma.is_contiguous() && sigma.sizes() == valid.sizes(),
+              "march_density: sigma must be a contiguous float32 [R, S]");
+  TORCH_CHECK(!tables.empty() && tables.size() == resolutions.size() && static_cast<int64_t>(tables.size()) <= levels,
+              "march_density: one resolution per (active) table, at most `levels` tables");
+  const int64_t channels = tables[0].size(1);
+  std::vector<const float*> tptr;
+  for (size_t l = 0; l < tables.size(); ++l) {
+    const auto& t = tables[l];
+    TORCH_CHECK(t.device().is_cpu() && t.scalar_type() == at::kFloat && t.is_contiguous() && t.size(1) == channels &&
+                    t.size(0) == resolutions[l] * resolutions[l] * resolutions[l],
+                "march_density: table ", l, " must be a contiguous float32 [R^3, C]");
+    tptr.push_back(t.data_ptr<float>());
+  }
+  const int64_t grid_dim = levels * channels, in_dim = grid_dim + 3 * (1 + 2 * frequencies);
+  TORCH_CHECK(weights[0].dim() == 2 && weights[0].size(1) == in_dim,
+              "march_density: the decoder's input must be the grid features and the positional encoding");
+  int64_t widest = 0;
+  const std::vector<Layer> layers = pack_mlp(u.new_empty({0, in_dim}), weights, biases, widest);
+  const int64_t feat = layers.back().n - 1;
+  TORCH_CHECK(feat >= 0, "march_density: the decoder has no density output");
+  check_rows(geo, n_rays * n_samples, feat, "march_density (geo)");
+  const float* up = u.data_ptr<float>();
+  const bool* vp = valid.data_ptr<bool>();
+  const float* dp = deltas.data_ptr<float>();
+  float* sp = sigma.data_ptr<float>();
+  float* gp = geo.data_ptr<float>();
+  const int64_t ldg = geo.stride(0);
+  const float bias = static_cast<float>(density_bias);
+  const size_t active = tables.size();
+  at::parallel_for(0, n_rays, 16, [&](int64_t begin, int64_t end) {
+    std::vector<float> a(kRows * widest, 0.f), b(kRows * widest, 0.f);
+    Corners c;
+    int64_t pending[kRows];
+    float raw_direct[kRows];
+    for (int64_t r = begin; r < end; ++r) {
+      const int64_t base = r * n_samples;
+      std::fill(sp + base, sp + base + n_samples, 0.f);
+      for (int64_t i = 0; i < n_samples; ++i) std::fill(gp + (base + i) * ldg, gp + (base + i) * ldg + feat, 0.f);
+      double optical = 0.0;
+      int64_t count = 0;
+      for (int64_t i = 0; i <= n_samples && optical < max_depth; ++i) {
+        if (i < n_samples) {
+          if (!vp[base + i]) continue;
+          // The sample's decoder input: grid features of every level (inactive fine levels: 0), then the encoding.
+          float* row = a.data() + count * widest;
+          const float* ui = up + 3 * (base + i);
+          // Fetch the corner rows of a sample a few ahead on the ray (the fine levels do not fit in the
+          // cache; the loads overlap with this sample's work instead of waiting one after the other).
+          if (i + kAhead < n_samples) {
+            Corners ahead;
+            for (size_t l = 0; l < active; ++l) {
+              corners_of(up + 3 * (base + i + kAhead), resolutions[l], ahead);
+              for (int k = 0; k < 8; k += 2) __builtin_prefetch(tptr[l] + ahead.idx[k] * channels);
+            }
+          }
+          for (size_t l = 0; l < active; ++l) {
+            corners_of(ui, resolutions[l], c);
+            lerp_level(tptr[l], c, row + static_cast<int64_t>(l) * channels, channels);
+          }
+          std::fill(row + active * channels, row + grid_dim, 0.f);
+          positional_row(ui, frequencies, row + grid_dim);
+          // The first channel of every grid level adds to the raw density directly (GridField.geometry).
+          float direct = 0.f;
+          for (int64_t l = 0; l < levels; ++l) direct += row[l * channels];
+          raw_direct[count] = direct;
+          pending[count++] = i;
+          if (count < kRows) continue;
+        }
+        if (count == 0) break;
+        // Decode the pending samples (rows past `count` hold stale inputs; their outputs are not read).
+        float* cur = a.data();
+        float* nxt = b.data();
+        for (size_t l = 0; l < layers.size(); ++l) {
+          layer_block(layers[l], cur, widest, nxt, widest, l + 1 < layers.size());
+          std::swap(cur, nxt);
+        }
+        for (int64_t j = 0; j < count; ++j) {
+          const float* out = cur + j * widest;
+          const float s = std::exp(std::min(out[0] + raw_direct[j] + bias, 20.f));
+          const int64_t k = base + pending[j];
+          sp[k] = s;
+          std::copy(out + 1, out + 1 + feat, gp + k * ldg);
+          double tau = static_cast<double>(s) * static_cast<double>(dp[k]);
+          if (std::isnan(tau)) tau = 0.0;
+          optical += std::min(std::max(tau, 0.0), 1e30);
+        }
+        count = 0;
+      }
+    }
+  });
+}
+
+// ---------------------------------------------------------------------------------------------------
+// Rendering without gradients: decoders at the chosen samples of each ray, weighted and summed per ray
+// (C = sum_i w_i c_i), in one pass instead of gathering inputs, concatenating, decoding, multiplying and
+// adding per ray with an operator each. A sample's decoder input is, by `layout`,
+//   0 (colour):  [geo[sample] | SH(dirs[ray])]                      (GridField.color)
+//   1 (labels):  [grid(u[sample]) | PE(u[sample]) | geo[sample]]    (GridField.labels)
+// and every decoder of the list (the semantic and the instance head) reads the same input. The samples of a
+// ray are consecutive rows (ray_start[r] .. ray_start[r + 1]); rows are decoded kRows at a time across ray
+// boundaries, and each task owns whole rays, so the sums need no synchronisation.
+
+void decode_composite(const at::Tensor& ray_start, const at::Tensor& sample, const at::Tensor& weight,
+                      const at::Tensor& u, const at::Tensor& geo, const at::Tensor& dirs, int64_t layout,
+                      int64_t sh_degree, const std::vector<at::Tensor>& tables, const std::vector<int64_t>& resolutions,
+                      int64_t levels, int64_t frequencies, const std::vector<at::Tensor>& weights,
+                      const std::vector<at::Tensor>& biases, const std::vector<int64_t>& layer_counts, bool sigmoid,
+                      std::vector<at::Tensor> outs) {
+  TORCH_CHECK(layout == 0 || layout == 1, "decode_composite: layout must be 0 (colour) or 1 (labels)");
+  TORCH_CHECK(ray_start.scalar_type() == at::kLong && ray_start.is_contiguous() && ray_start.dim() == 1,
+              "decode_composite: ray_start must be a contiguous int64 [R + 1]");
+  const int64_t n_rays = ray_start.size(0) - 1;
+  const int64_t k_rows = sample.numel();
+  TORCH_CHECK(sample.scalar_type() == at::kLong && sample.is_contiguous() && weight.scalar_type() == at::kFloat &&
+                  weight.is_contiguous() && weight.numel() == k_rows,
+              "decode_composite: sample (int64) and weight (float32) must be contiguous [K]");
+  TORCH_CHECK(geo.scalar_type() == at::kFloat && geo.dim() == 2 && geo.stride(1) == 1,
+              "decode_composite: geo must be float32 [N, F] with unit column stride");
+  const int64_t feat = geo.size(1);
+  int64_t in_dim = feat;
+  std::vector<const float*> tptr;
+  int64_t channels = 0;
+  if (layout == 0) {
+    check_points(dirs, "decode_composite (dirs)");
+    TORCH_CHECK(dirs.size(0) == n_rays && sh_degree >= 0 && sh_degree <= 3,
+                "decode_composite: a direction per ray and an SH degree in 0..3");
+    in_dim += (sh_degree + 1) * (sh_degree + 1);
+  } else {
+    check_points(u, "decode_composite (u)");
+    TORCH_CHECK(u.size(0) == geo.size(0), "decode_composite: u and geo need a row per sample each");
+    TORCH_CHECK(!tables.empty() && tables.size() == resolutions.size() && static_cast<int64_t>(tables.size()) <= levels,
+                "decode_composite: one resolution per (active) table");
+    channels = tables[0].size(1);
+    for (size_t l = 0; l < tables.size(); ++l) {
+      const auto& t = tables[l];
+      TORCH_CHECK(t.scalar_type() == at::kFloat && t.is_contiguous() && t.size(1) == channels &&
+                      t.size(0) == resolutions[l] * resolutions[l] * resolutions[l],
+                  "decode_composite: table ", l, " must be a contiguous float32 [R^3, C]");
+      tptr.push_back(t.data_ptr<float>());
+    }
+    in_dim += levels * channels + 3 * (1 + 2 * frequencies);
+  }
+  TORCH_CHECK(!layer_counts.empty() && outs.size() == layer_counts.size(), "decode_composite: one output per decoder");
+  std::vector<std::vector<Layer>> decoders;
+  int64_t widest = round_up(in_dim, 16);
+  size_t first = 0;
+  const at::Tensor no_rows = geo.new_empty({0, in_dim});
+  for (size_t m = 0; m < layer_counts.size(); ++m) {
+    const std::vector<at::Tensor> wm(weights.begin() + first, weights.begin() + first + layer_counts[m]);
+    const std::vector<at::Tensor> bm(biases.begin() + first, biases.begin() + first + layer_counts[m]);
+    first += layer_counts[m];
+    int64_t wide = 0;
+    decoders.push_back(pack_mlp(no_rows, wm, bm, wide));
+    widest = std::max(widest, wide);
+    check_rows(outs[m], n_rays, decoders.back().back().n, "decode_composite (out)");
+  }
+  const int64_t* sp = ray_start.data_ptr<int64_t>();
+  const int64_t* smp = sample.data_ptr<int64_t>();
+  const float* wp = weight.data_ptr<float>();
+  const float* up = layout == 1 ? u.data_ptr<float>() : nullptr;
+  const float* gp = geo.data_ptr<float>();
+  const int64_t ldg = geo.stride(0);
+  const float* dp = layout == 0 ? dirs.data_ptr<float>() : nullptr;
+  std::vector<float*> op;
+  std::vector<int64_t> ldo;
+  for (auto& o : outs) {
+    op.push_back(o.data_ptr<float>());
+    ldo.push_back(o.stride(0));
+  }
+  const size_t active = tptr.size();
+  at::parallel_for(0, n_rays, 64, [&](int64_t rb, int64_t re) {
+    std::vector<float> in(kRows * widest, 0.f), a(kRows * widest), b(kRows * widest);
+    for (size_t m = 0; m < decoders.size(); ++m)
+      for (int64_t r = rb; r < re; ++r) std::fill(op[m] + r * ldo[m], op[m] + r * ldo[m] + decoders[m].back().n, 0.f);
+    Corners c;
+    int64_t ray = rb;
+    const int64_t row_end = sp[re];
+    for (int64_t row0 = sp[rb]; row0 < row_end; row0 += kRows) {
+      const int64_t count = std::min<int64_t>(kRows, row_end - row0);
+      int64_t ray_of[kRows];
+      for (int64_t j = 0; j < count; ++j) {
+        const int64_t k = row0 + j;
+        while (sp[ray + 1] <= k) ++ray;
+        ray_of[j] = ray;
+        float* row = in.data() + j * widest;
+        const int64_t s = smp[k];
+        if (layout == 0) {
+          std::copy(gp + s * ldg, gp + s * ldg + feat, row);
+          sh_row(dp + 3 * ray, sh_degree, row + feat);
+        } else {
+          const float* us = up + 3 * s;
+          for (size_t l = 0; l < active; ++l) {
+            corners_of(us, resolutions[l], c);
+            lerp_level(tptr[l], c, row + static_cast<int64_t>(l) * channels, channels);
+          }
+          std::fill(row + active * channels, row + levels * channels, 0.f);
+          positional_row(us, frequencies, row + levels * channels);
+          std::copy(gp + s * ldg, gp + s * ldg + feat, row + in_dim - feat);
+        }
+      }
+      for (size_t m = 0; m < decoders.size(); ++m) {
+        const float* cur = in.data();
+        float* nxt = a.data();
+        for (size_t l = 0; l < decoders[m].size(); ++l) {
+          layer_block(decoders[m][l], cur, widest, nxt, widest, l + 1 < decoders[m].size());
+          cur = nxt;
+          nxt = nxt == a.data() ? b.data() : a.data();
+        }
+        const int64_t n_out = decoders[m].back().n;
+        for (int64_t j = 0; j < count; ++j) {
+          const float w = wp[row0 + j];
+          float* dst = op[m] + ray_of[j] * ldo[m];
+          const float* y = cur + j * widest;
+          for (int64_t o = 0; o < n_out; ++o) dst[o] += w * (sigmoid ? 1.f / (1.f + std::exp(-y[o])) : y[o]);
+        }
+      }
     }
   });
 }
@@ -567,4 +1045,14 @@ TORCH_LIBRARY(lift3d, m) {
         "float density_bias, int contraction, float extent, Tensor observed, Tensor occupied, float padding, "
         "Tensor(a!) new_edges) -> ()", &proposal_resample);
   m.def("mlp_forward(Tensor x, Tensor[] weights, Tensor[] biases, Tensor(a!) out) -> ()", &mlp_forward);
+  m.def("march_density(Tensor u, Tensor valid, Tensor deltas, Tensor[] tables, int[] resolutions, int levels, "
+        "int frequencies, Tensor[] weights, Tensor[] biases, float density_bias, float max_depth, Tensor(a!) sigma, "
+        "Tensor(b!) geo) -> ()", &march_density);
+  m.def("decode_composite(Tensor ray_start, Tensor sample, Tensor weight, Tensor u, Tensor geo, Tensor dirs, "
+        "int layout, int sh_degree, Tensor[] tables, int[] resolutions, int levels, int frequencies, Tensor[] weights, "
+        "Tensor[] biases, int[] layer_counts, bool sigmoid, Tensor(a!)[] outs) -> ()", &decode_composite);
+  m.def("mlp_forward_train(Tensor x, Tensor[] weights, Tensor[] biases, Tensor(a!) out, Tensor(b!)[] hidden) -> ()",
+        &mlp_forward_train);
+  m.def("mlp_backward(Tensor x, Tensor[] hidden, Tensor[] weights, Tensor grad_out, Tensor(a!)[] grad_w, "
+        "Tensor(b!)[] grad_b, Tensor(c!) grad_x, int grad_x_cols) -> ()", &mlp_backward);
 }
