@@ -39,6 +39,7 @@ from lift3d.train.trainer import Trainer, resolve_config, train
 from lift3d.utils.atomic import write_json_atomic
 from lift3d.utils.device import set_threads
 from lift3d.utils.memory import peak_rss_mb
+from lift3d.utils.threads import openmp_waiting
 
 
 def run_train(spec: dict) -> dict:
@@ -179,7 +180,7 @@ BUSY_NEIGHBOUR = ("import torch\ntorch.set_num_threads(2)\na = torch.randn(384, 
 
 
 def _busy_neighbour() -> subprocess.Popen:
-    env = {k: v for k, v in os.environ.items() if k not in ("OMP_WAIT_POLICY", "LIFT3D_THREADS")}
+    env = {k: v for k, v in os.environ.items() if k not in ("OMP_WAIT_POLICY", "GOMP_SPINCOUNT", "LIFT3D_THREADS")}
     env["OMP_NUM_THREADS"] = "2"
     return subprocess.Popen([sys.executable, "-c", BUSY_NEIGHBOUR], env=env, stdout=subprocess.DEVNULL,
                             stderr=subprocess.DEVNULL)
@@ -210,7 +211,7 @@ def run_under_load(spec: dict) -> dict:
                     neighbour.wait()
     med = {c: {k: 1e3 * float(np.median(v)) for k, v in t.items()} for c, t in times.items()}
     return {
-        "preset": cfg.preset, "threads": threads, "omp_wait_policy": os.environ.get("OMP_WAIT_POLICY"),
+        "preset": cfg.preset, "threads": threads, "openmp_waiting": openmp_waiting(),
         "steps": steps, "repeats": repeats, "rounds": int(spec.get("rounds", 3)),
         "step_ms": med["alone"]["step"], "render_ms": med["alone"]["render"],
         "loaded_step_ms": med["loaded"]["step"], "loaded_render_ms": med["loaded"]["render"],

@@ -18,7 +18,7 @@ import sys
 
 from lift3d import __version__
 from lift3d.errors import Lift3DError
-from lift3d.utils.threads import prefer_passive_waiting
+from lift3d.utils.threads import choose_openmp_waiting
 
 # Verb → module under lift3d.cli, in the order of the pipeline (docs/cli.md). A verb is listed only once it works.
 VERBS = {
@@ -73,8 +73,8 @@ def one_line(message: str) -> str:
 
 
 def main(argv: list[str] | None = None) -> int:
-    # First, before any verb (or its parser) loads torch: OpenMP reads its wait policy only then.
-    prefer_passive_waiting()
+    # First, before any verb (or its parser) loads torch: OpenMP reads how its threads wait only then.
+    choose_openmp_waiting()
     argv = list(sys.argv[1:] if argv is None else argv)
     verb = next((a for a in argv if not a.startswith("-")), None)  # the top level has no option with a value
     parser = build_parser(verb, lazy=True)
