@@ -269,19 +269,59 @@ class DenseGrid(nn.Module):
     def total_variation(self, num_samples: int, generator: torch.Generator | None = None) -> Tensor:
         """Mean L2 norm of feature differences between neighbouring nodes (L_tv), on a random subset of
         ``num_samples`` nodes per level and axis (a full-grid TV would allocate grid-sized temporaries
-        every step; the gathers use :func:`gather_rows`, whose backward adds in place)."""
-        terms = []
+        every step). On the CPU one C++ pass (:mod:`lift3d.field.native`; its backward adds into the tables'
+        gradients in place), else :meth:`total_variation_torch` on the same node pairs."""
+        pairs = []  # per level [3, n]: node b and its neighbour b + stride along x, y, z
         for table, r in zip(self.tables, self.resolutions):
             dev = table.device
-            for stride in (1, r, r * r):
-                n = min(num_samples, r**3)
-                base = torch.randint(0, r**3, (n,), generator=generator, device=dev)
-                # Keep neighbours inside the grid along this axis.
-                coord = (base // stride) % r
-                base = torch.where(coord == r - 1, base - stride, base)
-                d = gather_rows(table, base + stride) - gather_rows(table, base)
+            n = min(num_samples, r**3)
+            base = torch.randint(0, r**3, (3, n), generator=generator, device=dev)
+            strides = torch.tensor([[1], [r], [r * r]], device=dev)
+            # Keep neighbours inside the grid along each axis.
+            pairs.append(torch.where((base // strides) % r == r - 1, base - strides, base))
+        ext = native.usable(*self.tables)
+        if ext is None:
+            return self.total_variation_torch(pairs)
+        if torch.is_grad_enabled() and any(t.requires_grad for t in self.tables):
+            return _NativeTotalVariation.apply(tuple(pairs), self.resolutions, *self.tables).mean()
+        means = self.tables[0].new_empty(3 * len(self.tables))
+        ext.tv_forward([t.detach() for t in self.tables], pairs, list(self.resolutions), means)
+        return means.mean()
+
+    def total_variation_torch(self, pairs: list[Tensor]) -> Tensor:
+        """The pure-torch L_tv on given node pairs (``[3, n]`` per level; the reference for the C++ path;
+        the gathers use :func:`gather_rows`, whose backward adds in place)."""
+        terms = []
+        for table, r, base in zip(self.tables, self.resolutions, pairs):
+            for axis, stride in enumerate((1, r, r * r)):
+                d = gather_rows(table, base[axis] + stride) - gather_rows(table, base[axis])
                 terms.append(torch.sqrt((d * d).sum(-1) + 1e-12).mean())
         return torch.stack(terms).mean()
+
+
+class _NativeTotalVariation(torch.autograd.Function):
+    """Per level and axis, the mean TV of :meth:`DenseGrid.total_variation` by the C++ kernels (``[levels · 3]``);
+    the backward adds into the tables' gradients in place (see ACCUMULATE_GRAD_IN_PLACE)."""
+
+    @staticmethod
+    def forward(ctx, pairs: tuple[Tensor, ...], resolutions: tuple[int, ...], *tables: Tensor) -> Tensor:  # type: ignore[override]
+        means = tables[0].new_empty(3 * len(tables))
+        native.load().tv_forward([t.detach() for t in tables], list(pairs), list(resolutions), means)
+        ctx.pairs, ctx.resolutions, ctx.tables = pairs, resolutions, tables
+        return means
+
+    @staticmethod
+    def backward(ctx, grad_means: Tensor):  # type: ignore[override]
+        tables = ctx.tables
+        in_place = [ACCUMULATE_GRAD_IN_PLACE and t.is_leaf for t in tables]
+        grads = []
+        for t, inplace in zip(tables, in_place):
+            if inplace and t.grad is None:
+                t.grad = torch.zeros_like(t)
+            grads.append(t.grad if inplace else torch.zeros_like(t))
+        native.load().tv_backward([t.detach() for t in tables], list(ctx.pairs), list(ctx.resolutions),
+                                  grad_means.contiguous(), grads)
+        return (None, None) + tuple(None if inplace else g for g, inplace in zip(grads, in_place))
 
 
 def default_resolutions(max_resolution: int, levels: int, min_resolution: int = 16) -> tuple[int, ...]:

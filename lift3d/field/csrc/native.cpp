@@ -277,6 +277,118 @@ void sh_forward(const at::Tensor& dirs, int64_t degree, at::Tensor out, int64_t 
   });
 }
 
+// Total variation (L_tv) on sampled node pairs of every level of a dense grid: for level l and axis a, the
+// mean over k of || t_l[b + s_a] - t_l[b] ||_2 (sqrt of the squared sum + 1e-12), b = bases[l][a][k] and
+// s_a = 1, R, R^2 (lift3d.field.grids.DenseGrid.total_variation). A few thousand pairs per level: one
+// thread, no parallel region to wake up.
+
+struct TvLevel {
+  const float* t;
+  const int64_t* base;  // [3][n]
+  int64_t n, r, c;
+};
+
+// The pairs are random rows of tables larger than the cache: fetch those of pair k ahead of time.
+constexpr int64_t kTvAhead = 16;
+inline void tv_prefetch(const TvLevel& L, int a, int64_t k, int64_t stride) {
+  if (k >= L.n) return;
+  const float* p = L.t + L.base[a * L.n + k] * L.c;
+  __builtin_prefetch(p);
+  __builtin_prefetch(p + stride * L.c);
+}
+
+std::vector<TvLevel> tv_levels(const std::vector<at::Tensor>& tables, const std::vector<at::Tensor>& bases,
+                               const std::vector<int64_t>& resolutions) {
+  TORCH_CHECK(tables.size() == bases.size() && tables.size() == resolutions.size(),
+              "total_variation: one base-index tensor and one resolution per table");
+  std::vector<TvLevel> levels;
+  for (size_t l = 0; l < tables.size(); ++l) {
+    const auto& t = tables[l];
+    const auto& b = bases[l];
+    const int64_t r = resolutions[l];
+    TORCH_CHECK(t.device().is_cpu() && t.scalar_type() == at::kFloat && t.is_contiguous() && t.dim() == 2 &&
+                    t.size(0) == r * r * r,
+                "total_variation: table ", l, " must be a contiguous float32 [R^3, C]");
+    TORCH_CHECK(b.scalar_type() == at::kLong && b.is_contiguous() && b.dim() == 2 && b.size(0) == 3,
+                "total_variation: base indices ", l, " must be a contiguous int64 [3, n]");
+    const int64_t* bp = b.data_ptr<int64_t>();
+    const int64_t strides[3] = {1, r, r * r};
+    for (int a = 0; a < 3; ++a)
+      for (int64_t k = 0; k < b.size(1); ++k)
+        TORCH_CHECK(bp[a * b.size(1) + k] >= 0 && bp[a * b.size(1) + k] + strides[a] < r * r * r,
+                    "total_variation: a node pair outside table ", l);
+    levels.push_back({t.data_ptr<float>(), bp, b.size(1), r, t.size(1)});
+  }
+  return levels;
+}
+
+void tv_forward(const std::vector<at::Tensor>& tables, const std::vector<at::Tensor>& bases,
+                const std::vector<int64_t>& resolutions, at::Tensor means) {
+  const std::vector<TvLevel> levels = tv_levels(tables, bases, resolutions);
+  TORCH_CHECK(means.scalar_type() == at::kFloat && means.is_contiguous() &&
+                  means.numel() == 3 * static_cast<int64_t>(levels.size()),
+              "tv_forward: means must be a contiguous float32 [levels * 3]");
+  float* mp = means.data_ptr<float>();
+  for (size_t l = 0; l < levels.size(); ++l) {
+    const TvLevel& L = levels[l];
+    const int64_t strides[3] = {1, L.r, L.r * L.r};
+    for (int a = 0; a < 3; ++a) {
+      double sum = 0.0;
+      for (int64_t k = 0; k < L.n; ++k) {
+        tv_prefetch(L, a, k + kTvAhead, strides[a]);
+        const float* p = L.t + L.base[a * L.n + k] * L.c;
+        const float* q = p + strides[a] * L.c;
+        float sq = 0.f;
+        for (int64_t j = 0; j < L.c; ++j) sq += (q[j] - p[j]) * (q[j] - p[j]);
+        sum += std::sqrt(sq + 1e-12f);
+      }
+      mp[l * 3 + a] = L.n ? static_cast<float>(sum / static_cast<double>(L.n)) : 0.f;
+    }
+  }
+}
+
+// Gradient of tv_forward's means (upstream grad_means [levels * 3]), added into grads in place.
+void tv_backward(const std::vector<at::Tensor>& tables, const std::vector<at::Tensor>& bases,
+                 const std::vector<int64_t>& resolutions, const at::Tensor& grad_means, std::vector<at::Tensor> grads) {
+  const std::vector<TvLevel> levels = tv_levels(tables, bases, resolutions);
+  TORCH_CHECK(grad_means.scalar_type() == at::kFloat && grad_means.is_contiguous() &&
+                  grad_means.numel() == 3 * static_cast<int64_t>(levels.size()) && grads.size() == levels.size(),
+              "tv_backward: grad_means [levels * 3] and one gradient per table");
+  const float* gm = grad_means.data_ptr<float>();
+  for (size_t l = 0; l < levels.size(); ++l) {
+    const TvLevel& L = levels[l];
+    TORCH_CHECK(grads[l].scalar_type() == at::kFloat && grads[l].is_contiguous() && grads[l].sizes() == tables[l].sizes(),
+                "tv_backward: gradient ", l, " must be a contiguous float32 of its table's shape");
+    float* g = grads[l].data_ptr<float>();
+    const int64_t strides[3] = {1, L.r, L.r * L.r};
+    for (int a = 0; a < 3; ++a) {
+      if (L.n == 0) continue;
+      const float scale = gm[l * 3 + a] / static_cast<float>(L.n);
+      for (int64_t k = 0; k < L.n; ++k) {
+        tv_prefetch(L, a, k + kTvAhead, strides[a]);
+        if (k + kTvAhead < L.n) {  // and the gradient rows it will add to
+          const float* gp = g + L.base[a * L.n + k + kTvAhead] * L.c;
+          __builtin_prefetch(gp, 1);
+          __builtin_prefetch(gp + strides[a] * L.c, 1);
+        }
+        const int64_t b = L.base[a * L.n + k];
+        const float* p = L.t + b * L.c;
+        const float* q = p + strides[a] * L.c;
+        float sq = 0.f;
+        for (int64_t j = 0; j < L.c; ++j) sq += (q[j] - p[j]) * (q[j] - p[j]);
+        const float coef = scale / std::sqrt(sq + 1e-12f);
+        float* gp = g + b * L.c;
+        float* gq = gp + strides[a] * L.c;
+        for (int64_t j = 0; j < L.c; ++j) {
+          const float d = coef * (q[j] - p[j]);
+          gq[j] += d;
+          gp[j] -= d;
+        }
+      }
+    }
+  }
+}
+
 // ---------------------------------------------------------------------------------------------------
 // Scene space: normalised points -> grid coordinates u in [0, 1]^3 and whether the field may have density
 // there (inside a bounded scene, in a cell a training camera observes, in a cell the occupancy grid marks
@@ -683,7 +795,7 @@ void mlp_forward_train(const at::Tensor& x, const std::vector<at::Tensor>& weigh
 }
 
 // Gradients of mlp_forward_train's output: grad_w[l] = dL/dW_l and grad_b[l] = dL/db_l (overwritten), and
-// grad_x[:, :grad_x_cols] = dL/dx[:, :grad_x_cols] when grad_x_cols > 0.
+// when grad_x_cols > 0 grad_x = dL/dx in its first grad_x_cols columns, 0 in the others.
 void mlp_backward(const at::Tensor& x, const std::vector<at::Tensor>& hidden, const std::vector<at::Tensor>& weights,
                   const at::Tensor& grad_out, std::vector<at::Tensor> grad_w, std::vector<at::Tensor> grad_b,
                   at::Tensor grad_x, int64_t grad_x_cols) {
@@ -716,7 +828,7 @@ void mlp_backward(const at::Tensor& x, const std::vector<at::Tensor>& hidden, co
   }
   TORCH_CHECK(grad_x_cols >= 0 && grad_x_cols <= x.size(1), "mlp_backward: grad_x_cols out of range");
   if (grad_x_cols > 0) {
-    check_rows(grad_x, n, grad_x_cols, "mlp_backward (grad_x)");
+    check_rows(grad_x, n, x.size(1), "mlp_backward (grad_x)");
     back[0] = pack_backward(weights[0], grad_x_cols);
   }
   check_rows(grad_out, n, m.back(), "mlp_backward (grad_out)");
@@ -759,14 +871,21 @@ void mlp_backward(const at::Tensor& x, const std::vector<at::Tensor>& hidden, co
           for (int64_t r = 0; r < kBlockRows; r += kRows)
             layer_block(back[l], g.data() + r * widest, widest, gin.data() + r * widest, widest, false);
           if (l == 0) {
-            for (int64_t r = 0; r < rows; ++r)
-              std::copy(gin.data() + r * widest, gin.data() + r * widest + grad_x_cols, gx + (r0 + r) * ldgx);
+            for (int64_t r = 0; r < rows; ++r) {
+              float* dst = gx + (r0 + r) * ldgx;
+              std::copy(gin.data() + r * widest, gin.data() + r * widest + grad_x_cols, dst);
+              std::fill(dst + grad_x_cols, dst + k[0], 0.f);  // the columns that need no gradient
+            }
             break;
           }
           // Through the ReLU of hidden layer l - 1: its output (now in `a`) was positive where it passed.
-          for (int64_t r = 0; r < rows; ++r)
-            for (int64_t i = 0; i < k[l]; ++i)
-              if (!(a[r * widest + i] > 0.f)) gin[r * widest + i] = 0.f;
+          for (int64_t r = 0; r < rows; ++r) {
+            float* gr = gin.data() + r * widest;
+            const float* ar = a.data() + r * widest;
+            // A select, not a conditional store: compilers turn the latter into masked stores, which are slow
+            // on AMD CPUs (a seventh of the backward's time on Zen 3).
+            for (int64_t i = 0; i < k[l]; ++i) gr[i] = ar[i] > 0.f ? gr[i] : 0.f;
+          }
           std::swap(g, gin);
         }
       }
@@ -1051,6 +1170,9 @@ TORCH_LIBRARY(lift3d, m) {
   m.def("decode_composite(Tensor ray_start, Tensor sample, Tensor weight, Tensor u, Tensor geo, Tensor dirs, "
         "int layout, int sh_degree, Tensor[] tables, int[] resolutions, int levels, int frequencies, Tensor[] weights, "
         "Tensor[] biases, int[] layer_counts, bool sigmoid, Tensor(a!)[] outs) -> ()", &decode_composite);
+  m.def("tv_forward(Tensor[] tables, Tensor[] bases, int[] resolutions, Tensor(a!) means) -> ()", &tv_forward);
+  m.def("tv_backward(Tensor[] tables, Tensor[] bases, int[] resolutions, Tensor grad_means, Tensor(a!)[] grads) -> ()",
+        &tv_backward);
   m.def("mlp_forward_train(Tensor x, Tensor[] weights, Tensor[] biases, Tensor(a!) out, Tensor(b!)[] hidden) -> ()",
         &mlp_forward_train);
   m.def("mlp_backward(Tensor x, Tensor[] hidden, Tensor[] weights, Tensor grad_out, Tensor(a!)[] grad_w, "
