@@ -66,17 +66,19 @@ def linear_assign_instances(probs: Tensor, ids: Tensor, image_ids: Tensor | None
     probs = probs.detach()
     if image_ids is None:
         image_ids = torch.zeros_like(ids)
-    target = torch.full(ids.shape, -1, dtype=torch.long, device=ids.device)
-    images = torch.unique(image_ids)
-    for img in images.tolist():
-        sel = (image_ids == img).nonzero().squeeze(1)
-        cost, unique_ids = instance_cost_matrix(probs[sel], ids[sel])
-        # A diverging field can produce NaN probabilities; the trainer skips such steps, the matching
-        # must not crash before it gets the chance.
-        cost = torch.nan_to_num(cost.double(), nan=0.0, posinf=0.0, neginf=-1.0)
-        rows, cols = linear_sum_assignment(cost.cpu().numpy())
-        lut = np.full(len(unique_ids), -1, dtype=np.int64)
-        lut[rows] = cols
-        _, inv = torch.unique(ids[sel], return_inverse=True)
-        target[sel] = torch.from_numpy(lut).to(ids.device)[inv]
-    return target
+    if ids.numel() == 0:
+        return torch.full(ids.shape, -1, dtype=torch.long, device=ids.device)
+    # Every image's cost matrix at once: rows are (image, 2D id) pairs, sorted by image, then id.
+    span = int(ids.max()) + 1
+    keys, inv = torch.unique(image_ids.long() * span + ids.long(), return_inverse=True)
+    cost, _ = instance_cost_matrix(probs, inv)
+    # A diverging field can produce NaN probabilities; the trainer skips such steps, the matching
+    # must not crash before it gets the chance.
+    cost = torch.nan_to_num(cost.double(), nan=0.0, posinf=0.0, neginf=-1.0).cpu().numpy()
+    image_of_row = (keys // span).cpu().numpy()
+    starts = np.flatnonzero(np.r_[True, image_of_row[1:] != image_of_row[:-1]])
+    lut = np.full(len(keys), -1, dtype=np.int64)
+    for a, b in zip(starts, np.r_[starts[1:], len(keys)]):
+        rows, cols = linear_sum_assignment(cost[a:b])
+        lut[a + rows] = cols
+    return torch.from_numpy(lut).to(ids.device)[inv]
