@@ -1101,15 +1101,17 @@ void decode_composite(const at::Tensor& ray_start, const at::Tensor& sample, con
   }
   const size_t active = tptr.size();
   at::parallel_for(0, n_rays, 64, [&](int64_t rb, int64_t re) {
-    std::vector<float> in(kRows * widest, 0.f), a(kRows * widest), b(kRows * widest);
+    // kBlockRows rows at a time go through each layer while its weights stay in the L1 cache.
+    std::vector<float> in(kBlockRows * widest, 0.f), a(kBlockRows * widest), b(kBlockRows * widest);
+    std::vector<int64_t> ray_of(kBlockRows);
     for (size_t m = 0; m < decoders.size(); ++m)
       for (int64_t r = rb; r < re; ++r) std::fill(op[m] + r * ldo[m], op[m] + r * ldo[m] + decoders[m].back().n, 0.f);
     Corners c;
     int64_t ray = rb;
     const int64_t row_end = sp[re];
-    for (int64_t row0 = sp[rb]; row0 < row_end; row0 += kRows) {
-      const int64_t count = std::min<int64_t>(kRows, row_end - row0);
-      int64_t ray_of[kRows];
+    for (int64_t row0 = sp[rb]; row0 < row_end; row0 += kBlockRows) {
+      const int64_t count = std::min<int64_t>(kBlockRows, row_end - row0);
+      const int64_t groups = (count + kRows - 1) / kRows * kRows;  // rows decoded (past `count`: stale, unread)
       for (int64_t j = 0; j < count; ++j) {
         const int64_t k = row0 + j;
         while (sp[ray + 1] <= k) ++ray;
@@ -1134,7 +1136,8 @@ void decode_composite(const at::Tensor& ray_start, const at::Tensor& sample, con
         const float* cur = in.data();
         float* nxt = a.data();
         for (size_t l = 0; l < decoders[m].size(); ++l) {
-          layer_block(decoders[m][l], cur, widest, nxt, widest, l + 1 < decoders[m].size());
+          for (int64_t r = 0; r < groups; r += kRows)
+            layer_block(decoders[m][l], cur + r * widest, widest, nxt + r * widest, widest, l + 1 < decoders[m].size());
           cur = nxt;
           nxt = nxt == a.data() ? b.data() : a.data();
         }
