@@ -234,6 +234,17 @@ def test_fused_compositing_equals_decoding_and_summing():
 
 
 @needs_kernels
+def test_fused_compositing_rejects_inconsistent_indices():
+    field = _tiny_model().field
+    geo, u, dirs, w = torch.zeros(10, 15), torch.rand(10, 3), torch.tensor([[0.0, 0.0, 1.0]] * 2), torch.ones(3)
+    with torch.no_grad():
+        with pytest.raises(RuntimeError, match="outside geo's rows"):
+            field.composite_color(geo, dirs, torch.tensor([0, 1, 10]), torch.tensor([0, 1, 3]), w)
+        with pytest.raises(RuntimeError, match="non-decreasing|from 0 to K"):
+            field.composite_labels(u, geo, torch.tensor([0, 1, 2]), torch.tensor([0, 3, 2]), w)
+
+
+@needs_kernels
 def test_fused_paths_step_aside_for_a_replaced_method():
     """A field whose geometry or labels were replaced (a subclass, a test double) renders through them."""
     field = _tiny_model().field

@@ -115,6 +115,23 @@ class _GatherRows(torch.autograd.Function):
         return _scatter_grad(ctx.table, idx, grad_out), None
 
 
+def _gradient_buffers(tables: tuple[Tensor, ...]) -> tuple[list[Tensor], list[bool]]:
+    """Where a C++ backward adds each table's gradient: ``table.grad`` itself (allocated once, kept) when
+    :data:`ACCUMULATE_GRAD_IN_PLACE`, else a fresh zero tensor for autograd; and which of the two it is."""
+    in_place = [ACCUMULATE_GRAD_IN_PLACE and t.is_leaf for t in tables]
+    grads = []
+    for t, inplace in zip(tables, in_place):
+        if inplace and t.grad is None:
+            t.grad = torch.zeros_like(t)
+        grads.append(t.grad if inplace else torch.zeros_like(t))
+    return grads, in_place
+
+
+def _returned(grads: list[Tensor], in_place: list[bool]) -> tuple[Tensor | None, ...]:
+    """What a backward returns for the tables: None for the gradients it added in place."""
+    return tuple(None if inplace else g for g, inplace in zip(grads, in_place))
+
+
 def _native_encode(ext, u: Tensor, resolutions: tuple[int, ...], channels: int, pe: int,
                    tables: tuple[Tensor, ...]) -> Tensor:
     """``[grid features of every level | positional encoding]`` by the C++ kernels; levels beyond
@@ -143,17 +160,10 @@ class _NativeEncode(torch.autograd.Function):
     @staticmethod
     def backward(ctx, grad_out: Tensor):  # type: ignore[override]
         (u,) = ctx.saved_tensors
-        tables = ctx.tables
         grad_out = grad_out if grad_out.stride(-1) == 1 else grad_out.contiguous()
-        in_place = [ACCUMULATE_GRAD_IN_PLACE and t.is_leaf for t in tables]
-        grads = []
-        for t, inplace in zip(tables, in_place):
-            if inplace and t.grad is None:
-                t.grad = torch.zeros_like(t)
-            grads.append(t.grad if inplace else torch.zeros_like(t))
-        native.load().grid_backward(u, grad_out, 0, grads, list(ctx.resolutions[: len(tables)]))
-        returned = tuple(None if inplace else g for g, inplace in zip(grads, in_place))
-        return (None, None, None, None) + returned
+        grads, in_place = _gradient_buffers(ctx.tables)
+        native.load().grid_backward(u, grad_out, 0, grads, list(ctx.resolutions[: len(ctx.tables)]))
+        return (None, None, None, None) + _returned(grads, in_place)
 
 
 def gather_rows(table: Tensor, idx: Tensor) -> Tensor:
@@ -312,16 +322,10 @@ class _NativeTotalVariation(torch.autograd.Function):
 
     @staticmethod
     def backward(ctx, grad_means: Tensor):  # type: ignore[override]
-        tables = ctx.tables
-        in_place = [ACCUMULATE_GRAD_IN_PLACE and t.is_leaf for t in tables]
-        grads = []
-        for t, inplace in zip(tables, in_place):
-            if inplace and t.grad is None:
-                t.grad = torch.zeros_like(t)
-            grads.append(t.grad if inplace else torch.zeros_like(t))
-        native.load().tv_backward([t.detach() for t in tables], list(ctx.pairs), list(ctx.resolutions),
+        grads, in_place = _gradient_buffers(ctx.tables)
+        native.load().tv_backward([t.detach() for t in ctx.tables], list(ctx.pairs), list(ctx.resolutions),
                                   grad_means.contiguous(), grads)
-        return (None, None) + tuple(None if inplace else g for g, inplace in zip(grads, in_place))
+        return (None, None) + _returned(grads, in_place)
 
 
 def default_resolutions(max_resolution: int, levels: int, min_resolution: int = 16) -> tuple[int, ...]:

@@ -685,30 +685,26 @@ inline void load_block(const float* src, int64_t lds, int64_t r0, int64_t rows, 
   for (int64_t r = 0; r < rows; ++r) std::copy(src + (r0 + r) * lds, src + (r0 + r) * lds + cols, dst + r * ld);
 }
 
-// ---------------------------------------------------------------------------------------------------
-// Training of the same MLPs. The forward also keeps every hidden activation (after its ReLU) for the
-// backward; the backward computes the weight and bias gradients and the gradient of the input's first
-// `grad_x_cols` columns (the rest of a decoder's input, positional encodings or detached features, needs
-// none), a block of rows at a time while the block stays in the cache. Weight gradients are summed per
-// chunk of rows and the chunks added in a fixed order, so the result does not depend on the thread count.
-
-constexpr int64_t kChunks = 8;             // row chunks of the weight-gradient sums
-
-// out[:, :N_last] = MLP(x) for torch.nn.Linear weights [N_i, K_i] and biases [N_i], ReLU between layers.
-void mlp_forward(const at::Tensor& x, const std::vector<at::Tensor>& weights, const std::vector<at::Tensor>& biases,
-                 at::Tensor out) {
-  int64_t widest = 0;
-  const std::vector<Layer> layers = pack_mlp(x, weights, biases, widest);
+// out = MLP(x) for torch.nn.Linear weights [N_i, K_i] and biases [N_i], ReLU between layers; with `hidden`
+// (a buffer per hidden layer, or empty) also every hidden layer's output after its ReLU. kBlockRows rows go
+// through one layer before the next layer starts: the layer's weights stay in the L1 cache for all of them
+// (the decoders' weights together do not fit).
+void run_mlp_blocks(const at::Tensor& x, const std::vector<Layer>& layers, int64_t widest, at::Tensor out,
+                    const std::vector<at::Tensor>& hidden) {
   const int64_t n = x.size(0);
-  check_rows(out, n, layers.back().n, "mlp_forward (out)");
+  check_rows(out, n, layers.back().n, "mlp (out)");
+  for (size_t l = 0; l < hidden.size(); ++l) check_rows(hidden[l], n, layers[l].n, "mlp (hidden)");
   if (n == 0) return;
   const float* xp = x.data_ptr<float>();
   const int64_t ldx = x.stride(0);
-  float* op = out.data_ptr<float>();
-  const int64_t ldo = out.stride(0);
-  const int64_t n_last = layers.back().n;
-  // kBlockRows rows go through one layer before the next layer starts: the layer's weights stay in the L1
-  // cache for all of them (the decoders' weights together do not fit).
+  std::vector<float*> dst(layers.size(), nullptr);  // where a layer's output goes (hidden: only when kept)
+  std::vector<int64_t> ld(layers.size(), 0);
+  for (size_t l = 0; l < layers.size(); ++l) {
+    if (l + 1 < layers.size() && hidden.empty()) continue;
+    const at::Tensor& t = l + 1 < layers.size() ? hidden[l] : out;
+    dst[l] = t.data_ptr<float>();
+    ld[l] = t.stride(0);
+  }
   at::parallel_for(0, (n + kBlockRows - 1) / kBlockRows, 1, [&](int64_t begin, int64_t end) {
     std::vector<float> a(kBlockRows * widest), b(kBlockRows * widest);
     for (int64_t blk = begin; blk < end; ++blk) {
@@ -719,12 +715,30 @@ void mlp_forward(const at::Tensor& x, const std::vector<at::Tensor>& weights, co
       for (size_t l = 0; l < layers.size(); ++l) {
         for (int64_t r = 0; r < kBlockRows; r += kRows)
           layer_block(layers[l], cur + r * widest, widest, nxt + r * widest, widest, l + 1 < layers.size());
+        if (dst[l] != nullptr)
+          for (int64_t r = 0; r < rows; ++r)
+            std::copy(nxt + r * widest, nxt + r * widest + layers[l].n, dst[l] + (r0 + r) * ld[l]);
         std::swap(cur, nxt);
       }
-      for (int64_t r = 0; r < rows; ++r) std::copy(cur + r * widest, cur + r * widest + n_last, op + (r0 + r) * ldo);
     }
   });
 }
+
+void mlp_forward(const at::Tensor& x, const std::vector<at::Tensor>& weights, const std::vector<at::Tensor>& biases,
+                 at::Tensor out) {
+  int64_t widest = 0;
+  const std::vector<Layer> layers = pack_mlp(x, weights, biases, widest);
+  run_mlp_blocks(x, layers, widest, out, {});
+}
+
+// ---------------------------------------------------------------------------------------------------
+// Training of the same MLPs. The forward also keeps every hidden activation (after its ReLU) for the
+// backward; the backward computes the weight and bias gradients and the gradient of the input's first
+// `grad_x_cols` columns (the rest of a decoder's input, positional encodings or detached features, needs
+// none), a block of rows at a time while the block stays in the cache. Weight gradients are summed per
+// chunk of rows and the chunks added in a fixed order, so the result does not depend on the thread count.
+
+constexpr int64_t kChunks = 8;             // row chunks of the weight-gradient sums
 
 // dw[o][i] += sum_r g[r][o] a[r][i] over a block of kBlockRows rows; o < rows of dw (a multiple of kRows),
 // i < ldw (a multiple of 16). g rows are ldg apart, a rows lda apart.
@@ -762,36 +776,8 @@ void mlp_forward_train(const at::Tensor& x, const std::vector<at::Tensor>& weigh
                        const std::vector<at::Tensor>& biases, at::Tensor out, std::vector<at::Tensor> hidden) {
   int64_t widest = 0;
   const std::vector<Layer> layers = pack_mlp(x, weights, biases, widest);
-  const int64_t n = x.size(0);
   TORCH_CHECK(hidden.size() + 1 == layers.size(), "mlp_forward_train: one hidden buffer per hidden layer");
-  check_rows(out, n, layers.back().n, "mlp_forward_train (out)");
-  for (size_t l = 0; l < hidden.size(); ++l) check_rows(hidden[l], n, layers[l].n, "mlp_forward_train (hidden)");
-  if (n == 0) return;
-  const float* xp = x.data_ptr<float>();
-  const int64_t ldx = x.stride(0);
-  std::vector<float*> dst;  // where each layer's output goes: the hidden buffers, then out
-  std::vector<int64_t> ld;
-  for (size_t l = 0; l < layers.size(); ++l) {
-    const at::Tensor& t = l + 1 < layers.size() ? hidden[l] : out;
-    dst.push_back(t.data_ptr<float>());
-    ld.push_back(t.stride(0));
-  }
-  at::parallel_for(0, (n + kBlockRows - 1) / kBlockRows, 1, [&](int64_t begin, int64_t end) {
-    std::vector<float> a(kBlockRows * widest), b(kBlockRows * widest);
-    for (int64_t blk = begin; blk < end; ++blk) {
-      const int64_t r0 = blk * kBlockRows, rows = std::min(kBlockRows, n - r0);
-      load_block(xp, ldx, r0, rows, layers[0].k, a.data(), widest);
-      float* cur = a.data();
-      float* nxt = b.data();
-      for (size_t l = 0; l < layers.size(); ++l) {
-        for (int64_t r = 0; r < kBlockRows; r += kRows)
-          layer_block(layers[l], cur + r * widest, widest, nxt + r * widest, widest, l + 1 < layers.size());
-        const int64_t cols = layers[l].n;
-        for (int64_t r = 0; r < rows; ++r) std::copy(nxt + r * widest, nxt + r * widest + cols, dst[l] + (r0 + r) * ld[l]);
-        std::swap(cur, nxt);
-      }
-    }
-  });
+  run_mlp_blocks(x, layers, widest, out, hidden);
 }
 
 // Gradients of mlp_forward_train's output: grad_w[l] = dL/dW_l and grad_b[l] = dL/db_l (overwritten), and
@@ -1088,6 +1074,11 @@ void decode_composite(const at::Tensor& ray_start, const at::Tensor& sample, con
   }
   const int64_t* sp = ray_start.data_ptr<int64_t>();
   const int64_t* smp = sample.data_ptr<int64_t>();
+  TORCH_CHECK(sp[0] == 0 && sp[n_rays] == k_rows, "decode_composite: ray_start must run from 0 to K");
+  for (int64_t r = 0; r < n_rays; ++r)
+    TORCH_CHECK(sp[r] <= sp[r + 1], "decode_composite: ray_start must be non-decreasing");
+  for (int64_t k = 0; k < k_rows; ++k)
+    TORCH_CHECK(smp[k] >= 0 && smp[k] < geo.size(0), "decode_composite: a sample index outside geo's rows");
   const float* wp = weight.data_ptr<float>();
   const float* up = layout == 1 ? u.data_ptr<float>() : nullptr;
   const float* gp = geo.data_ptr<float>();
