@@ -232,18 +232,24 @@ def plot_pareto(results: dict | str | Path, path: str | Path, *, title: str | No
                 if len(front) > 1:
                     ax.step(np.array(cx)[front], np.array(cy)[front], where="post", ls="--", color=color[sc],
                             lw=1, zorder=0)
+            lines: dict[float, list[str]] = {}
             if base_key:
-                # The baseline does not depend on the preset: one dotted line per scene.
+                # The baseline does not depend on the preset: one dotted line per scene, and one for scenes that
+                # share their pseudo-labels (the same room with and without depth maps), named once.
                 for sc in scenes:
                     vals = [_num((r.get("pseudo_labels") if isinstance(r.get("pseudo_labels"), dict) else {})
                                  .get(base_key)) for r in runs if _scene_label(r) == sc]
                     vals = [v for v in vals if np.isfinite(v)]
                     if vals:
-                        y = float(np.mean(vals))
-                        ax.axhline(y, color="crimson", ls=":", lw=1.5)
-                        if len(scenes) > 1:
-                            ax.annotate(sc, (1.0, y), xycoords=("axes fraction", "data"), xytext=(-3, 2),
-                                        textcoords="offset points", ha="right", fontsize=7, color="crimson")
+                        lines.setdefault(round(float(np.mean(vals)), 4), []).append(sc)
+                for k, (y, names) in enumerate(sorted(lines.items())):
+                    ax.axhline(y, color="crimson", ls=":", lw=1.5)
+                    if len(scenes) > 1:
+                        # Neighbouring lines can be a few hundredths apart: names alternate below and above.
+                        above = k % 2 == 1 or len(lines) == 1
+                        ax.annotate(" · ".join(names), (1.0, y), xycoords=("axes fraction", "data"),
+                                    xytext=(-3, 2 if above else -3), textcoords="offset points", ha="right",
+                                    va="bottom" if above else "top", fontsize=7, color="crimson")
             xs_all = np.array([_num(r.get(cost_key)) for r in runs])
             xs_all = xs_all[np.isfinite(xs_all) & (xs_all > 0)]
             if xs_all.size and xs_all.max() / xs_all.min() > 5:
@@ -251,6 +257,8 @@ def plot_pareto(results: dict | str | Path, path: str | Path, *, title: str | No
                 _plain_log_ticks(ax, "x")
             if metric in ("pq_scene", "miou"):
                 lo = ax.get_ylim()[0]
+                if base_key and lines:  # room for the name under the lowest baseline
+                    lo = min(lo, min(lines) - 0.03 * (ax.get_ylim()[1] - lo) - 0.02)
                 ax.set_ylim(max(0.0, min(lo, 0.0 if lo < 0.1 else lo)), min(1.0, ax.get_ylim()[1] + 0.05))
             ax.set_xlabel(cost_label)
             ax.set_ylabel(metric_label)
