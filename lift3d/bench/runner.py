@@ -755,7 +755,9 @@ def benchmarks_markdown(results: dict, pictures: dict[str, str]) -> str:
 def profile_markdown(prof: dict) -> list[str]:
     """The "where the time goes" section: stages and top operators of a training step and of a render."""
     b = prof.get("batch", {})
-    rays = b.get("images_per_batch", 0) * (b.get("patch_size", 0) ** 2 + b.get("rays_per_image", 0))
+    # Profiles cached before rays_per_step was recorded counted the random rays and the patch only.
+    rays = b.get("rays_per_step") or b.get("images_per_batch", 0) * (b.get("patch_size", 0) ** 2
+                                                                      + b.get("rays_per_image", 0))
     lines = [
         "",
         "## Where the time goes",

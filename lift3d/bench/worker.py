@@ -169,7 +169,9 @@ def run_profile(spec: dict) -> dict:
         "step_ms": 1e3 * float(np.median(step_times)), "render_ms": 1e3 * float(np.median(render_times)),
         "train": step_profile, "render": render,
         "batch": {"images_per_batch": cfg.data.images_per_batch, "rays_per_image": cfg.data.rays_per_image,
-                  "patch_size": cfg.data.patch_size, "num_samples": cfg.sampling.num_samples},
+                  "patch_size": cfg.data.patch_size, "segments_per_image": cfg.data.segments_per_image,
+                  "rays_per_segment": cfg.data.rays_per_segment, "rays_per_step": cfg.data.rays_per_step,
+                  "num_samples": cfg.sampling.num_samples},
     }
 
 

@@ -66,6 +66,18 @@ class DataConfig:
     max_instance_channels: int = 128
     """Upper bound on the derived number of instance channels V."""
 
+    @property
+    def rays_per_step(self) -> int:
+        """Rays one training step renders: per image the random rays, the segment sampler's and the patch.
+
+        Examples
+        --------
+        >>> DataConfig(images_per_batch=16, rays_per_image=32, patch_size=8, segments_per_image=4).rays_per_step
+        2048
+        """
+        per_image = self.rays_per_image + self.segments_per_image * self.rays_per_segment + self.patch_size ** 2
+        return self.images_per_batch * per_image
+
 
 @dataclass
 class ImageDepthConfig:
