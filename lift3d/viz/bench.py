@@ -272,13 +272,15 @@ def plot_pareto(results: dict | str | Path, path: str | Path, *, title: str | No
     handles += [Line2D([], [], marker="o", ls="", color="grey", mfc="none", mew=1.5, ms=8, label=v) for v in others]
     handles.append(Line2D([], [], ls="--", color="grey", label="Pareto front (per scene)"))
     handles.append(Line2D([], [], ls=":", color="crimson", lw=1.5, label="2D pseudo-labels"))
-    fig.legend(handles=handles, loc="upper center", ncol=min(len(handles), 8), fontsize=9, frameon=False,
+    # Up to 6 entries a row: with six scenes the names would run past the figure's edges in one row.
+    rows = -(-len(handles) // 6)
+    fig.legend(handles=handles, loc="upper center", ncol=-(-len(handles) // rows), fontsize=9, frameon=False,
                bbox_to_anchor=(0.5, 0.935))
     n_scenes = len(scenes)
     head = title or f"speed / accuracy of the presets ({len(runs)} runs, {n_scenes} scene{'s' * (n_scenes != 1)})"
     machine = _machine_line(results.get("machine"))
     fig.suptitle(head + (f"\n{machine}" if machine else ""), fontsize=11)
-    fig.tight_layout(rect=(0, 0, 1, 0.9))
+    fig.tight_layout(rect=(0, 0, 1, 0.9 - 0.03 * (rows - 1)))
     return save_figure(fig, path)
 
 
