@@ -257,7 +257,7 @@ def plot_pareto(results: dict | str | Path, path: str | Path, *, title: str | No
                 _plain_log_ticks(ax, "x")
             if metric in ("pq_scene", "miou"):
                 lo = ax.get_ylim()[0]
-                if base_key and lines:  # room for the name under the lowest baseline
+                if lines:  # room for the name under the lowest baseline
                     lo = min(lo, min(lines) - 0.03 * (ax.get_ylim()[1] - lo) - 0.02)
                 ax.set_ylim(max(0.0, min(lo, 0.0 if lo < 0.1 else lo)), min(1.0, ax.get_ylim()[1] + 0.05))
             ax.set_xlabel(cost_label)
