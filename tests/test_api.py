@@ -96,10 +96,10 @@ def test_render_rays_agree_with_render_and_chunks_change_nothing(run):
 
 
 def test_query_points_at_exported_points_give_the_exported_labels(run, tiny_run, tmp_path):
-    # without the instance clean-up, which folds crumbs and unsure instances into their neighbour's class on
-    # purpose (docs/api.md)
+    # without the instance clean-up, which folds crumbs, unsure and unconfirmed instances into their
+    # neighbour's class on purpose (docs/api.md)
     export_run(tiny_run, tmp_path, pointcloud=True, num_points=3000, device="cpu", merge_fragments=False,
-               crumb_points=0, min_instance_confidence=0.0)
+               crumb_points=0, min_instance_confidence=0.0, min_support_views=0)
     pts = lift3d.load_labelled_points(tmp_path)
     q = run.query_points(pts.xyz)
     assert np.array_equal(q["semantic"], pts.semantic)

@@ -166,3 +166,41 @@ def test_a_fragment_whose_labels_spill_onto_stuff_still_merges():
     votes = segment_votes(xyz, instance, cams, np.arange(3), lambda f: maps[f])
     merged, n = merge_fragments(instance, np.array([0, 7, 7]), votes, min_views=2)
     assert n == 1 and (merged[:1600] == 1).all()
+
+
+def test_an_instance_no_2d_thing_segment_confirms_folds_and_a_confirmed_one_stays():
+    # A confident patch of a thing class on a wall that the 2D labels show as wall in every view (fog or a
+    # label that leaked in 3D) folds into the wall; an object its 2D segment covers in every view stays.
+    rng = np.random.default_rng(8)
+    wall = _plate(-2, 2, 4000, rng, y=1.0)
+    patch = _plate(0.4, 0.8, 200, rng, y=1.0)
+    obj = _plate(-1.0, -0.6, 200, rng, y=0.0)
+    xyz = np.concatenate([wall, patch, obj])
+    semantic = np.array([1] * 4000 + [9] * 200 + [7] * 200)
+    instance = np.array([0] * 4000 + [1] * 200 + [2] * 200)
+    cams = _views()
+    maps = _segment_maps(cams, [(11, -1.0, -0.6)])
+    kwargs = dict(cameras=cams, frames=np.arange(3), segments_of=lambda f: maps[f], link_radius=0.1,
+                  crumb_points=10, confidence=np.full(4400, 0.95), min_confidence=0.7)
+    sem, inst, keep, stats = clean_instances(xyz, xyz, semantic, instance, min_support_views=1, **kwargs)
+    assert keep.all()
+    assert (inst[4000:4200] == 0).all() and (sem[4000:4200] == 1).all(), "the unconfirmed patch becomes wall"
+    assert (inst[4200:] == 1).all() and (sem[4200:] == 7).all(), "the confirmed object stays, renumbered 1"
+    assert stats["min_support_views"] == 1 and stats["unsupported"] == 1 and stats["instances_after"] == 1
+    # Asking for more confirming views than the object has (3) folds it too, but with nothing around it
+    # to fold into it keeps its points and its id.
+    _, inst4, keep4, stats4 = clean_instances(xyz, xyz, semantic, instance, min_support_views=4, **kwargs)
+    assert stats4["unsupported"] == 2 and stats4["instances_after"] == 1 and keep4.all()
+    assert (inst4[4000:4200] == 0).all() and (inst4[4200:] == 1).all()
+    _, _, _, stats_off = clean_instances(xyz, xyz, semantic, instance, min_support_views=0, **kwargs)
+    assert stats_off["unsupported"] == 0 and stats_off["instances_after"] == 2
+
+
+def test_support_is_counted_for_merged_fragments_together():
+    from lift3d.export.cleanup import supporting_views
+
+    # Pieces 1 and 2 (merged into 1) each hold half of the group's visible points in view 0, both on segment
+    # 5: together they are confirmed there; alone neither reaches a majority of the group in view 1.
+    votes = np.array([[0, 1, 5, 4, 8], [0, 2, 5, 4, 8], [1, 1, 5, 3, 8], [1, 2, 6, 3, 8]])
+    assert supporting_views(votes, np.array([1, 2]), np.array([1, 1])).tolist() == [0, 1]
+    assert supporting_views(votes, np.array([1, 2]), np.array([1, 2])).tolist() == [0, 1, 1]

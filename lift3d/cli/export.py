@@ -99,6 +99,9 @@ def add_parser(subparsers, verb: str) -> argparse.ArgumentParser:
     g.add_argument("--min-instance-confidence", type=float, default=None, metavar="P",
                    help="instances whose points' mean class probability is below P fold into their surroundings "
                         "(default: 0.7; 0 = keep all)")
+    g.add_argument("--min-support-views", type=int, default=None, metavar="K",
+                   help="instances that the 2D labels confirm as a thing in fewer than K training views fold into "
+                        "their surroundings (default: 1; 0 = keep all)")
     m = p.add_argument_group("mesh")
     m.add_argument("--resolution", type=int, default=256, metavar="R", help="grid cells per axis (default: 256)")
     m.add_argument("--split-instances", action="store_true", help="also write instances/<id>_<class>.ply")
@@ -124,8 +127,12 @@ def run(args: argparse.Namespace) -> int:
         raise InputError("--min-points", f"must be >= 0, got {args.min_points}")
     if args.crumb_points is not None and args.crumb_points < 0:
         raise InputError("--crumb-points", f"must be >= 0, got {args.crumb_points}")
+    if args.min_support_views is not None and args.min_support_views < 0:
+        raise InputError("--min-support-views", f"must be >= 0, got {args.min_support_views}")
     instance_confidence = {} if args.min_instance_confidence is None else \
         {"min_instance_confidence": args.min_instance_confidence}
+    if args.min_support_views is not None:
+        instance_confidence["min_support_views"] = args.min_support_views
     if not 8 <= args.resolution <= 1024:
         raise InputError("--resolution", f"must be between 8 and 1024, got {args.resolution}")
     obb = None

@@ -14,9 +14,14 @@ fix that, using the views the field was trained from:
    count: a fragment whose label spilled onto the floor around it still belongs to its object). A 2D
    segmenter that merges two touching objects does so in some frames, not in most, so neighbours of one
    class stay apart. Groups are joined transitively.
-2. **Crumbs fold.** An instance with fewer than ``min_points`` points takes the majority (class, instance) of
-   the points around it (within ``4 × link_radius``, outside crumbs) and disappears into it; with no such
-   point it is dropped.
+2. **Unconfirmed instances fold.** An object the 2D segmenter never confirms is not an object: an instance
+   (after merging) must have the majority of its visible points on one 2D thing segment in at least
+   ``min_support_views`` of the voting views. Specks of fog in front of a wall and slivers beside an object
+   land on stuff, or show too few points to vote, in every view; a real small thing seen by a single view
+   is confirmed there. One with nothing around it stays as it is.
+3. **Crumbs fold.** An instance with fewer than ``min_points`` points (or an unconfirmed or unsure one) takes
+   the majority (class, instance) of the points around it (within ``4 × link_radius``, outside crumbs) and
+   disappears into it; with no such point a crumb is dropped.
 
 Counts before and after each step go to the export's ``metadata.json`` (``thresholds.points.instances``).
 
@@ -181,6 +186,49 @@ def merge_fragments(instance: np.ndarray, instance_class: np.ndarray, votes: np.
     return roots[instance], merges
 
 
+def supporting_views(votes: np.ndarray, old_instance: np.ndarray, new_instance: np.ndarray,
+                     min_share: float = 0.5) -> np.ndarray:
+    """``[max new id + 1]`` views in which most of an instance's visible points land on one 2D thing segment.
+
+    Parameters
+    ----------
+    votes : np.ndarray
+        :func:`segment_votes` rows ``(frame, instance, segment, points in segment, visible points)`` for the
+        ids of ``old_instance``.
+    old_instance, new_instance : np.ndarray
+        ``[N]`` ids before and after :func:`merge_fragments` (the votes are counted for the merged groups).
+    min_share : float
+        Share of the visible points one segment must hold in a view.
+
+    Examples
+    --------
+    Instance 1 is confirmed in views 0 and 1, instance 2 (merged into 1) adds nothing, instance 3 only in view 1:
+
+    >>> votes = np.array([[0, 1, 7, 9, 10], [1, 1, 4, 8, 10], [1, 3, 5, 3, 4], [0, 3, 5, 1, 4]])
+    >>> supporting_views(votes, np.array([1, 2, 3]), np.array([1, 1, 3])).tolist()
+    [0, 2, 0, 1]
+    """
+    old_instance, new_instance = np.asarray(old_instance, np.int64), np.asarray(new_instance, np.int64)
+    n_new = int(new_instance.max(initial=0)) + 1
+    out = np.zeros(n_new, np.int64)
+    if len(votes) == 0:
+        return out
+    to_new = np.zeros(max(int(old_instance.max(initial=0)), int(votes[:, 1].max())) + 1, np.int64)
+    to_new[old_instance] = new_instance
+    frame, inst, seg, count, total = (votes[:, k] for k in range(5))
+    new = to_new[inst]
+    # Visible points of a merged group in a view: the sum over its pieces (each piece's total once).
+    piece = np.unique(np.stack([frame, inst], 1), axis=0, return_index=True)[1]
+    view_key = frame * n_new + new
+    totals = np.bincount(view_key[piece], weights=total[piece], minlength=int(view_key.max()) + 1)
+    seg_key, seg_inv = np.unique(np.stack([view_key, seg], 1), axis=0, return_inverse=True)
+    seg_count = np.bincount(seg_inv.ravel(), weights=count)
+    confirmed = seg_count >= min_share * totals[seg_key[:, 0]]
+    views = np.unique(seg_key[confirmed, 0])
+    np.add.at(out, views % n_new, 1)
+    return out
+
+
 def instance_classes(semantic: np.ndarray, instance: np.ndarray) -> np.ndarray:
     """``[max id + 1]`` majority class of every instance id (0 for ids without points)."""
     instance = np.asarray(instance, np.int64)
@@ -204,7 +252,7 @@ def count_instances(instance: np.ndarray) -> int:
 def clean_instances(xyz: np.ndarray, xyz_world: np.ndarray, semantic: np.ndarray, instance: np.ndarray, *,
                     cameras, frames: np.ndarray, segments_of: Callable[[int], np.ndarray], link_radius: float,
                     crumb_points: int, merge: bool = True, max_views: int = 24, min_share: float = 0.5,
-                    min_views: int = 2, confidence: np.ndarray | None = None,
+                    min_views: int = 2, min_support_views: int = 0, confidence: np.ndarray | None = None,
                     min_confidence: float = 0.0) -> tuple[np.ndarray, np.ndarray, np.ndarray, dict[str, Any]]:
     """Merge fragments, then fold crumbs and unsure instances (see the module docstring).
 
@@ -223,7 +271,10 @@ def clean_instances(xyz: np.ndarray, xyz_world: np.ndarray, semantic: np.ndarray
     crumb_points : int
         Instances with fewer points are crumbs (0 = keep every instance).
     merge : bool
-        Merge fragments (step 1); off, only crumbs are folded.
+        Merge fragments (step 1); off, no instances merge.
+    min_support_views : int
+        Instances confirmed by the 2D thing segments in fewer of the voting views fold like crumbs (step 2;
+        0 = off).
     confidence : np.ndarray, optional
         ``[N]`` probability of each point's class; needed when ``min_confidence`` > 0.
     min_confidence : float
@@ -242,11 +293,20 @@ def clean_instances(xyz: np.ndarray, xyz_world: np.ndarray, semantic: np.ndarray
                              "merge": {"views": int(min(max_views, len(frames))), "min_share": float(min_share),
                                        "min_views": int(min_views)} if merge else "off",
                              "crumb_points": int(crumb_points)}
-    if merge and stats["instances_before"] > 1:
+    votes = None
+    if (merge and stats["instances_before"] > 1) or (min_support_views > 0 and stats["instances_before"]):
         votes = segment_votes(xyz_world, instance, cameras, frames, segments_of, max_views=max_views)
+    before = instance
+    if merge and stats["instances_before"] > 1:
         instance, stats["fragments_merged"] = merge_fragments(instance, instance_classes(semantic, instance), votes,
                                                               min_share=min_share, min_views=min_views)
     stats["after_merge"] = count_instances(instance)
+    support = None
+    stats["min_support_views"] = 0
+    stats["unsupported"] = 0
+    if votes is not None and min_support_views > 0:
+        stats["min_support_views"] = need = int(min_support_views)
+        support = supporting_views(votes, before, instance)
     keep = np.ones(len(instance), bool)
     # Components in the sense of _relabel_fragments: instance id - 1 on things, -1 on stuff.
     component = np.where(instance > 0, instance - 1, -1)
@@ -259,6 +319,16 @@ def clean_instances(xyz: np.ndarray, xyz_world: np.ndarray, semantic: np.ndarray
         in_crumb[thing] = sizes[component[thing]] < crumb_points
     stats["min_confidence"] = float(min_confidence)
     stats["unsure"] = 0
+    if support is not None and thing.any():
+        ids = np.unique(instance[instance > 0])
+        unsupported = np.isin(instance, ids[support[ids] < need])
+        # Counted among the instances that are not crumbs already (those fold anyway).
+        stats["unsupported"] = count_instances(instance[unsupported & ~in_crumb])
+        # One with nothing around it to fold into keeps its points (and its id): the geometry is not in doubt.
+        stay = set(np.unique(component[unsupported & ~in_crumb]).tolist())
+        in_crumb |= unsupported
+    else:
+        stay = set()
     if min_confidence > 0 and thing.any():
         if confidence is None:
             raise ValueError("clean_instances: min_confidence > 0 needs the points' confidence")
@@ -269,9 +339,7 @@ def clean_instances(xyz: np.ndarray, xyz_world: np.ndarray, semantic: np.ndarray
         stats["unsure"] = int(unsure.sum())
         in_crumb[thing] |= unsure[component[thing]]
         # An unsure instance with nothing sure around it (a field that is unsure everywhere) stays.
-        stay = set(np.flatnonzero(unsure).tolist())
-    else:
-        stay = set()
+        stay |= set(np.flatnonzero(unsure).tolist())
     if in_crumb.any():
         _relabel_fragments(np.asarray(xyz, np.float64), semantic, component, in_crumb, keep, 4.0 * link_radius,
                            crumb_stats, stay_when_isolated=stay)

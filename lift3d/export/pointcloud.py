@@ -84,6 +84,10 @@ OUTLIER_NEIGHBOURS = 20
 #: class distribution: on tuning scene 100 such instances had a mean class probability of 0.61-0.66, every
 #: instance on a real object 0.78-0.93.
 MIN_INSTANCE_CONFIDENCE = 0.7
+#: Instances need the majority of their visible points on one 2D thing segment in this many of the clean-up's
+#: voting views (:func:`lift3d.export.cleanup.clean_instances`). One: on tuning scenes 5 and 6 two or three
+#: dropped real objects that few views see (a toy plane on the floor in 1 of 1 voting view, a ball in 2 of 5).
+MIN_SUPPORT_VIEWS = 1
 
 
 # ------------------------------------------------------------------------------------------ results
@@ -175,7 +179,9 @@ def extract_labelled_points(loaded: LoadedRun, scene: Scene, *, source: str = "s
                             refine_surface: bool = True, min_confidence: float = 0.0, voxel_size: float = 0.0,
                             remove_outliers: bool = False, std_ratio: float = 2.0, obb=None, min_points: int = 0,
                             merge_fragments: bool = True, crumb_points: int | None = None,
-                            min_instance_confidence: float = MIN_INSTANCE_CONFIDENCE, device=None, progress: bool = False) -> LabelledPoints:
+                            min_instance_confidence: float = MIN_INSTANCE_CONFIDENCE,
+                            min_support_views: int = MIN_SUPPORT_VIEWS, device=None,
+                            progress: bool = False) -> LabelledPoints:
     """A labelled point cloud of a trained run (see the module docstring for the sources and filters).
 
     Parameters
@@ -217,6 +223,10 @@ def extract_labelled_points(loaded: LoadedRun, scene: Scene, *, source: str = "s
     min_instance_confidence : float
         Instances whose points' mean class probability is below this fold into their surroundings as crumbs
         do (default :data:`MIN_INSTANCE_CONFIDENCE`; 0 keeps them).
+    min_support_views : int
+        Instances that the 2D pseudo-labels confirm as a thing (most of their visible points on one 2D thing
+        segment) in fewer training views fold into their surroundings as crumbs do (default
+        :data:`MIN_SUPPORT_VIEWS`; 0 keeps them).
     device : str, optional
         Move the model to this device first (``cpu``, ``cuda``, ``auto``).
     progress : bool
@@ -238,6 +248,8 @@ def extract_labelled_points(loaded: LoadedRun, scene: Scene, *, source: str = "s
         raise InputError("--std-ratio", f"must be > 0, got {std_ratio}")
     if not 0.0 <= min_instance_confidence <= 1.0:
         raise InputError("--min-instance-confidence", f"must be in [0, 1], got {min_instance_confidence}")
+    if int(min_support_views) < 0:
+        raise InputError("--min-support-views", f"must be >= 0, got {min_support_views}")
     if device is not None:
         loaded.model.to(resolve_device(device))
     timings: dict[str, float] = {}
@@ -302,7 +314,8 @@ def extract_labelled_points(loaded: LoadedRun, scene: Scene, *, source: str = "s
     semantic, instance, kept, cleanup = clean_instances(
         xyz, xyz_world, semantic, instance, cameras=scene.cameras, frames=train_frames(scene),
         segments_of=lambda f: scene.pseudo_labels(f).instance, link_radius=link, crumb_points=int(crumb_points),
-        merge=merge_fragments, confidence=confidence, min_confidence=float(min_instance_confidence))
+        merge=merge_fragments, min_support_views=int(min_support_views), confidence=confidence,
+        min_confidence=float(min_instance_confidence))
     timings["instance_cleanup"] = time.perf_counter() - t
     thresholds["instance_cleanup"] = cleanup
     stats.update(points=int(kept.sum()), instances=assignment.stats, instance_cleanup=cleanup, seconds=timings,
