@@ -129,10 +129,9 @@ def run(args: argparse.Namespace) -> int:
         raise InputError("--crumb-points", f"must be >= 0, got {args.crumb_points}")
     if args.min_support_views is not None and args.min_support_views < 0:
         raise InputError("--min-support-views", f"must be >= 0, got {args.min_support_views}")
-    instance_confidence = {} if args.min_instance_confidence is None else \
-        {"min_instance_confidence": args.min_instance_confidence}
-    if args.min_support_views is not None:
-        instance_confidence["min_support_views"] = args.min_support_views
+    # Clean-up settings the user gave; the rest keep extract_labelled_points' defaults.
+    cleanup = {name: value for name, value in (("min_instance_confidence", args.min_instance_confidence),
+                                               ("min_support_views", args.min_support_views)) if value is not None}
     if not 8 <= args.resolution <= 1024:
         raise InputError("--resolution", f"must be between 8 and 1024, got {args.resolution}")
     obb = None
@@ -161,7 +160,7 @@ def run(args: argparse.Namespace) -> int:
         source=args.source, num_points=args.num_points, frame=args.frame, density_threshold=args.density_threshold,
         refine_surface=args.refine_surface, min_confidence=args.min_confidence, voxel_size=args.voxel_size,
         remove_outliers=args.remove_outliers, std_ratio=args.std_ratio, obb=obb, min_points=args.min_points,
-        merge_fragments=args.merge_fragments, crumb_points=args.crumb_points, **instance_confidence, device=args.device,
+        merge_fragments=args.merge_fragments, crumb_points=args.crumb_points, **cleanup, device=args.device,
     )
     print(format_summary(summary))
     return 0

@@ -320,8 +320,7 @@ def clean_instances(xyz: np.ndarray, xyz_world: np.ndarray, semantic: np.ndarray
     stats["min_confidence"] = float(min_confidence)
     stats["unsure"] = 0
     if support is not None and thing.any():
-        ids = np.unique(instance[instance > 0])
-        unsupported = np.isin(instance, ids[support[ids] < need])
+        unsupported = (instance > 0) & (support[instance] < need)
         # Counted among the instances that are not crumbs already (those fold anyway).
         stats["unsupported"] = count_instances(instance[unsupported & ~in_crumb])
         # One with nothing around it to fold into keeps its points (and its id): the geometry is not in doubt.

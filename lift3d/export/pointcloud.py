@@ -85,8 +85,8 @@ OUTLIER_NEIGHBOURS = 20
 #: instance on a real object 0.78-0.93.
 MIN_INSTANCE_CONFIDENCE = 0.7
 #: Instances need the majority of their visible points on one 2D thing segment in this many of the clean-up's
-#: voting views (:func:`lift3d.export.cleanup.clean_instances`). One: on tuning scenes 5 and 6 two or three
-#: dropped real objects that few views see (a toy plane on the floor in 1 of 1 voting view, a ball in 2 of 5).
+#: voting views (:func:`lift3d.export.cleanup.clean_instances`). One: on tuning scene 5, asking for two or three
+#: folded real objects that few views see (a toy plane on the floor in 1 of 1 voting view, a ball in 2 of 5).
 MIN_SUPPORT_VIEWS = 1
 
 
