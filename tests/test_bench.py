@@ -155,6 +155,11 @@ def test_plan_lists_every_run_once_with_its_sections_and_an_estimate(tmp_path, c
     assert main(["bench", "--plan", "--quick", "--out", str(tmp_path / "quick"), "--only", "presets"]) == 0
     out = capsys.readouterr().out
     assert "indoor_s100_moderate_fast_all" in out and "indoor_s101_" in out and "_s0_" not in out
+    # Each ablation is a cost of its own: --ablation-modes time plans the equal-time variants only.
+    assert main(["bench", "--plan", "--out", str(tmp_path), "--seeds", "100", "--only", "ablation",
+                 "--ablation-modes", "time"]) == 0
+    out = capsys.readouterr().out
+    assert out.count("_equal-time (ablation)") == 5 and "_equal-steps" not in out
 
 
 @pytest.mark.parametrize("argv, message", [
@@ -162,6 +167,7 @@ def test_plan_lists_every_run_once_with_its_sections_and_an_estimate(tmp_path, c
     (["--seeds", "0,0"], "--seeds: scene seeds must be distinct"),
     (["--inputs", "depth"], "--inputs: 'depth' is not one of"),
     (["--ablation-budget", "0"], "--ablation-budget"),
+    (["--ablation-modes", "steps,wall"], "--ablation-modes: 'wall' is not one of steps, time"),
 ])
 def test_bad_flags_are_one_line_errors(argv, message, tmp_path, capfd):
     assert main(["bench", "--plan", "--out", str(tmp_path), *argv]) == 2

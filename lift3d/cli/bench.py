@@ -78,6 +78,8 @@ def add_parser(subparsers, verb: str) -> argparse.ArgumentParser:
                    help="steps of every variant in the equal-steps ablation (default: 1500, the fast preset's)")
     p.add_argument("--ablation-budget", type=float, default=600.0, metavar="S",
                    help="wall-time budget per variant in the equal-time ablation, seconds (default: 600)")
+    p.add_argument("--ablation-modes", type=_csv(str), default=("steps", "time"), metavar="LIST",
+                   help="ablations to run: steps (equal steps), time (equal wall time) or both (default: steps,time)")
     p.add_argument("--no-scaling", action="store_true", help="skip the scaling measurements")
     p.add_argument("--no-export", action="store_true",
                    help="skip timing a 1M-point labelled export of the indoor run")
@@ -116,7 +118,8 @@ def run(args: argparse.Namespace) -> int:
     seeds = args.seeds if args.seeds is not None else (QUICK_SEEDS if args.quick else REPORT_SEEDS)
     cfg = BenchConfig(out=Path(args.out), scenes=args.scenes, presets=args.presets, seeds=seeds,
                       noises=args.noises, inputs=args.inputs, ablation_steps=args.ablation_steps,
-                      ablation_budget=args.ablation_budget, reevaluate=args.reevaluate, quick=args.quick,
+                      ablation_budget=args.ablation_budget, ablation_modes=tuple(args.ablation_modes),
+                      reevaluate=args.reevaluate, quick=args.quick,
                       docs_dir=docs, **{SECTIONS[s]: on for s, on in switches.items()})
     if args.plan:
         print(plan_text(cfg.check()))
