@@ -180,6 +180,42 @@ def test_a_sheet_thinner_than_the_coarse_lattice_is_still_contoured(monkeypatch)
     assert field_isosurface(model, 100.0, 128).stats["coarse_cells"] == 64  # the default coarse lattice
 
 
+@pytest.mark.parametrize("resolution", [64, 128])
+def test_isosurface_equals_contouring_every_lattice_node(resolution):
+    """One pass (the field's grid as fine as the export) or two (coarse, then fine nodes near τ): the surface
+    is the one of the density evaluated at every node of the fine lattice; only points in the field's space
+    are decoded (density 0 elsewhere by the Field contract)."""
+    import pyvista as pv
+
+    from lift3d.export.mesh import _lattice_all, field_density, field_isosurface
+
+    model = _tiny_model()
+    decoded = []
+
+    def geometry(x, space=None):
+        decoded.append(len(x))
+        sigma = 300.0 * torch.exp(-((x - torch.tensor([0.1, -0.2, 0.05])).norm(dim=-1) / 0.35) ** 4)
+        return sigma, torch.zeros(len(x), model.cfg.field.geo_feat_dim), ((x + 1) / 2).clamp(0, 1)
+
+    model.field.geometry = geometry
+    surf = field_isosurface(model, 100.0, resolution)
+    assert surf.stats["coarse_cells"] == 64 and (surf.stats["refined_nodes"] > 0) == (resolution > 64)
+    n = resolution + 1
+    nodes = _lattice_all(n, 1.0, resolution)
+    volume = np.pad(geometry(torch.from_numpy(nodes).float())[0].numpy().reshape(n, n, n), 1)
+    step = 2.0 / resolution
+    image = pv.ImageData(dimensions=volume.shape, spacing=(step,) * 3, origin=(-1 - step,) * 3)
+    image.point_data["density"] = volume.ravel(order="F")
+    ref = image.contour([100.0], scalars="density", method="flying_edges", compute_scalars=False)
+    assert len(surf.faces) == ref.n_cells > 100
+    assert np.allclose(np.sort(surf.vertices, axis=0), np.sort(np.asarray(ref.points), axis=0), atol=1e-5)
+    # Points outside the box are not decoded and have density 0.
+    decoded.clear()
+    x = np.array([[0.1, -0.2, 0.05], [1.5, 0.0, 0.0], [0.0, -3.0, 0.0]], np.float32)
+    sigma = field_density(model, x)
+    assert decoded == [1] and sigma[0] > 100 and sigma[1] == sigma[2] == 0
+
+
 def test_automatic_threshold_matches_the_rendered_surface(analytic):
     tau, info = choose_density_threshold(analytic.loaded, analytic.scene)
     assert 0 < tau < PEAK_DENSITY, info
@@ -212,7 +248,7 @@ def test_refinement_moves_vertices_onto_the_rendered_surface():
     assert st["moved"] == st["vertices"] == len(surf.vertices)
     assert np.array_equal(refined.faces, surf.faces)
     # Too little density for a half-opaque short ray: nothing moves.
-    model.field.geometry = lambda x: (0.05 * geometry(x)[0], *geometry(x)[1:])
+    model.field.geometry = lambda x, space=None: (0.05 * geometry(x)[0], *geometry(x)[1:])
     faint = refine_to_rendered_surface(model, field_isosurface(model, 0.5, 64))
     assert faint.stats["refine"]["moved"] == 0
 
