@@ -220,6 +220,7 @@ def test_bench_quick_one_row_over_two_seeds(tmp_path, monkeypatch):
     assert sorted(r["seed"] for r in rows) == ["100", "101"]
     ex = results["export"]
     assert ex["points"] > 0 and ex["seconds"] > 0 and ex["preset"] == "fast"
+    assert ex["repeats"] == 1 and ex["all_seconds"] == [ex["seconds"]]  # --quick: one export
     md = (docs / "benchmarks.md").read_text()
     line = next(x for x in md.splitlines() if x.startswith("| indoor | moderate | RGB + depth | fast |"))
     miou = runs[0]["miou"], runs[1]["miou"]
