@@ -101,6 +101,36 @@ def test_skipping_empty_cells_and_terminating_rays_is_exact_up_to_the_thresholds
         assert torch.allclose(a, b, atol=2e-3), (a - b).abs().max()
 
 
+def test_render_label_coverage_decodes_fewer_samples_outside_training_only():
+    """Renders outside training decode labels at the fewest top samples holding 90 % of the top-8 weight,
+    and the labels stay close to what all eight give; training renders decode all eight."""
+    g = torch.Generator().manual_seed(4)
+    o = torch.rand(128, 3, generator=g) * 0.4 - torch.tensor([0.9, 0.2, 0.2])
+    d = torch.tensor([1.0, 0.0, 0.0]) + 0.1 * torch.randn(128, 3, generator=g)
+    d = d / d.norm(dim=-1, keepdim=True)
+    field = Slab().eval()
+    geometry = field.geometry
+    field.geometry = lambda x, space=None: (lambda s, *rest: (s * 0.08, *rest))(*geometry(x, space))  # translucent
+    decoded = []
+    labels = field.labels
+    field.labels = lambda u, geo: (decoded.append(len(u)), labels(u, geo))[1]
+    none = torch.nn.ModuleList()
+    out = {}
+    for coverage in (0.0, 0.9):
+        cfg = SamplingConfig(proposal_resolutions=(), num_samples=96, render_label_coverage=coverage)
+        for training in (False, True):
+            decoded.clear()
+            torch.manual_seed(0)  # the same jittered samples in both training renders
+            r = render_rays(field, none, o, d, cfg, bounded=True, training=training)
+            out[coverage, training] = (sum(decoded), r.semantic.detach())
+    assert out[0.0, False][0] == out[0.0, True][0] == out[0.9, True][0] == 128 * 8  # the training cap
+    assert out[0.9, False][0] < 0.8 * out[0.0, False][0]  # about 6 of 8 on this translucent slab
+    assert torch.allclose(out[0.9, True][1], out[0.0, True][1])  # training is unaffected
+    few, all8 = out[0.9, False][1], out[0.0, False][1]
+    assert float((few.argmax(-1) == all8.argmax(-1)).float().mean()) > 0.95  # (this field's labels nearly tie)
+    assert float(torch.nn.functional.cosine_similarity(few, all8, dim=-1).min()) > 0.99  # ~10 % less weight
+
+
 def _rays(n: int = 256):
     g = torch.Generator().manual_seed(5)
     d = torch.randn(n, 3, generator=g)

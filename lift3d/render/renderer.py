@@ -62,6 +62,13 @@ class SamplingConfig:
     """Semantic/instance decoders run on at most this many highest-weight samples per ray (0 = no cap).
     Once geometry has formed, a ray's weight sits on a few samples; before that, the cap keeps the wide
     label decoders from running on every sample."""
+    render_label_coverage: float = 0.9
+    """Renders outside training (evaluation, rendered images and videos, the rays export): of a ray's
+    ``label_max_samples`` highest-weight samples, the semantic/instance decoders run only on the fewest that
+    hold this fraction of their weight (0 = all of them, as in training). Training is unaffected. Chosen on
+    four tuning runs (`fast`, rooms 5 and 6, with and without depth maps): 0.9 decodes 4.0-4.9 samples per
+    ray instead of 7.4-7.7 where sensor depth made surfaces sharp (7.7 of 8 without depth maps, whose
+    weight spreads) and moved test-view mIoU by at most 0.0008 and PQ^scene by at most 0.0014."""
     near_gradient_distance: float = 0.5
     """Gradients of density and colour at a sample at distance ``t`` from its camera are scaled by
     ``min(1, (t / d)^2)`` (Philip & Deschaintre 2023, "Floaters No More"): space close to a camera is
@@ -256,9 +263,10 @@ def render_rays(
     semantic = instance = None
     if with_labels:
         w_det = weights.detach()  # labels must not carve geometry
-        if 0 < cfg.label_max_samples < n_samples:
+        coverage = 0.0 if training else cfg.render_label_coverage
+        if 0 < cfg.label_max_samples < n_samples or coverage > 0:
             with torch.no_grad():
-                lidx = _label_samples(w_det, cfg)
+                lidx = _label_samples(w_det, cfg.label_max_samples, cfg.head_weight_threshold, coverage)
                 lray = torch.div(lidx, n_samples, rounding_mode="floor")
                 lrows = lidx if geo_row is None else geo_row.index_select(0, lidx)
         else:
@@ -433,13 +441,27 @@ def scale_gradient(x: Tensor, scale: Tensor) -> Tensor:
     return _ScaleGradient.apply(x, scale)
 
 
-def _label_samples(weights: Tensor, cfg: SamplingConfig) -> Tensor:
-    """Flat indices of the ``label_max_samples`` highest-weight samples of every ray that also pass the
-    weight threshold. ``weights`` ``[R, S]`` → ``[K]``."""
+def _label_samples(weights: Tensor, cap: int, threshold: float, coverage: float = 0.0) -> Tensor:
+    """Flat indices of the ``cap`` (0: all) highest-weight samples of every ray that pass the weight
+    ``threshold``; with ``coverage`` > 0 only the fewest of them that hold that fraction of their weight.
+    ``weights`` ``[R, S]`` → ``[K]``.
+
+    Examples
+    --------
+    >>> w = torch.tensor([[0.0, 0.9, 0.05, 0.03, 0.02], [0.1, 0.3, 0.2, 0.25, 0.0]])
+    >>> _label_samples(w, 3, 1e-4).tolist(), _label_samples(w, 3, 1e-4, coverage=0.6).tolist()
+    ([1, 2, 3, 6, 8, 7], [1, 6, 8])
+    """
     n_rays, n_samples = weights.shape
-    top_w, top_i = weights.topk(cfg.label_max_samples, dim=1)
+    cap = n_samples if cap <= 0 else min(cap, n_samples)
+    top_w, top_i = weights.topk(cap, dim=1)
+    keep = top_w > threshold
+    if coverage > 0:
+        # A sample is needed while the heavier samples before it hold less than `coverage` of the ray's weight.
+        before = top_w.cumsum(1) - top_w
+        keep &= before < coverage * top_w.sum(1, keepdim=True)
     flat = top_i + torch.arange(n_rays, device=weights.device)[:, None] * n_samples
-    return flat[top_w > cfg.head_weight_threshold]
+    return flat[keep]
 
 
 @torch.no_grad()
