@@ -151,6 +151,8 @@ class BenchConfig:
     #: Which ablations to run: at equal steps, at equal time, or both (each is a separate cost: at 1 500 steps
     #: the plain-MLP Base alone trains about an hour per seed on 2 CPU cores).
     ablation_modes: tuple = ABLATION_MODES
+    #: Which variants of :data:`ABLATION` to train (default all; e.g. the cheap ones first, Base later).
+    ablation_variants: tuple = tuple(ABLATION)
     scaling: bool = True
     export: bool = True
     profile: bool = True
@@ -182,6 +184,9 @@ class BenchConfig:
         bad = [m for m in self.ablation_modes if m not in ABLATION_MODES]
         if bad or not self.ablation_modes:
             raise InputError("--ablation-modes", f"{(bad or [''])[0]!r} is not one of {', '.join(ABLATION_MODES)}")
+        bad = [v for v in self.ablation_variants if v not in ABLATION]
+        if bad or not self.ablation_variants:
+            raise InputError("--ablation-variants", f"{(bad or [''])[0]!r} is not one of {', '.join(ABLATION)}")
         return self
 
 
@@ -410,6 +415,8 @@ def _plan_sections(cfg: BenchConfig) -> list[Job]:
             if mode not in cfg.ablation_modes:
                 continue
             for variant, over in ABLATION.items():
+                if variant not in cfg.ablation_variants:
+                    continue
                 for seed in cfg.seeds:
                     tags = {"mode": mode}
                     if mode == "time":

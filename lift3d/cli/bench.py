@@ -80,6 +80,9 @@ def add_parser(subparsers, verb: str) -> argparse.ArgumentParser:
                    help="wall-time budget per variant in the equal-time ablation, seconds (default: 600)")
     p.add_argument("--ablation-modes", type=_csv(str), default=("steps", "time"), metavar="LIST",
                    help="ablations to run: steps (equal steps), time (equal wall time) or both (default: steps,time)")
+    p.add_argument("--ablation-variants", type=_csv(str), default=None, metavar="LIST",
+                   help="ablation variants to train, of base, base+S, base+S+L_seg, base+S+L_feat and all (default: "
+                        "all five); the tables compare the variants there are")
     p.add_argument("--no-scaling", action="store_true", help="skip the scaling measurements")
     p.add_argument("--no-export", action="store_true",
                    help="skip timing a 1M-point labelled export of the indoor run")
@@ -120,7 +123,8 @@ def run(args: argparse.Namespace) -> int:
                       noises=args.noises, inputs=args.inputs, ablation_steps=args.ablation_steps,
                       ablation_budget=args.ablation_budget, ablation_modes=tuple(args.ablation_modes),
                       reevaluate=args.reevaluate, quick=args.quick,
-                      docs_dir=docs, **{SECTIONS[s]: on for s, on in switches.items()})
+                      docs_dir=docs, **{SECTIONS[s]: on for s, on in switches.items()},
+                      **({} if args.ablation_variants is None else {"ablation_variants": tuple(args.ablation_variants)}))
     if args.plan:
         print(plan_text(cfg.check()))
         return 0
