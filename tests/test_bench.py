@@ -160,6 +160,11 @@ def test_plan_lists_every_run_once_with_its_sections_and_an_estimate(tmp_path, c
                  "--ablation-modes", "time"]) == 0
     out = capsys.readouterr().out
     assert out.count("_equal-time (ablation)") == 5 and "_equal-steps" not in out
+    # ... and --ablation-variants some of the variants (Base, the plain MLP, is most of the cost).
+    assert main(["bench", "--plan", "--out", str(tmp_path), "--seeds", "100", "--only", "ablation",
+                 "--ablation-modes", "steps", "--ablation-variants", "base+S,all"]) == 0
+    out = capsys.readouterr().out
+    assert out.count("(ablation)") == 2 and "base+S_equal-steps" in out and "all_equal-steps" in out
 
 
 @pytest.mark.parametrize("argv, message", [
@@ -168,6 +173,7 @@ def test_plan_lists_every_run_once_with_its_sections_and_an_estimate(tmp_path, c
     (["--inputs", "depth"], "--inputs: 'depth' is not one of"),
     (["--ablation-budget", "0"], "--ablation-budget"),
     (["--ablation-modes", "steps,wall"], "--ablation-modes: 'wall' is not one of steps, time"),
+    (["--ablation-variants", "base,S"], "--ablation-variants: 'S' is not one of base, base+S,"),
 ])
 def test_bad_flags_are_one_line_errors(argv, message, tmp_path, capfd):
     assert main(["bench", "--plan", "--out", str(tmp_path), *argv]) == 2
