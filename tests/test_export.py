@@ -187,7 +187,7 @@ def test_isosurface_equals_contouring_every_lattice_node(resolution):
     are decoded (density 0 elsewhere by the Field contract)."""
     import pyvista as pv
 
-    from lift3d.export.mesh import _lattice_all, field_density, field_isosurface
+    from lift3d.export.mesh import field_density, field_isosurface
 
     model = _tiny_model()
     decoded = []
@@ -201,7 +201,8 @@ def test_isosurface_equals_contouring_every_lattice_node(resolution):
     surf = field_isosurface(model, 100.0, resolution)
     assert surf.stats["coarse_cells"] == 64 and (surf.stats["refined_nodes"] > 0) == (resolution > 64)
     n = resolution + 1
-    nodes = _lattice_all(n, 1.0, resolution)
+    axis = np.linspace(-1.0, 1.0, n)
+    nodes = np.stack(np.meshgrid(axis, axis, axis, indexing="ij"), -1).reshape(-1, 3)
     volume = np.pad(geometry(torch.from_numpy(nodes).float())[0].numpy().reshape(n, n, n), 1)
     step = 2.0 / resolution
     image = pv.ImageData(dimensions=volume.shape, spacing=(step,) * 3, origin=(-1 - step,) * 3)

@@ -561,7 +561,7 @@ def run_benchmark(cfg: BenchConfig) -> dict:
                  or {}).get("run")
     if cfg.export and first_run:
         spec = {"kind": "export", "run": first_run, "num_points": 20_000 if cfg.quick else 1_000_000}
-        # Each repeat in a fresh process (what `lift3d export` costs a user, one-time loads included); the
+        # Each repeat in a fresh process (as `lift3d export` runs: nothing warmed up by an earlier export); the
         # median, because the same export here takes 4-7 s from one minute to the next.
         repeats = 1 if cfg.quick else EXPORT_REPEATS
         paths = [cache / f"export_indoor_{cfg.presets[0]}_r{r}.json" for r in range(repeats)]
@@ -842,16 +842,19 @@ def under_load_markdown(ul: dict) -> list[str]:
 
 
 def median_export(records: list[dict]) -> dict:
-    """The repeat of median total time (its stages and memory with it), with every repeat's total.
+    """The repeat of median total time (its stages with it), with every repeat's total and the highest peak
+    memory of any repeat.
 
     Examples
     --------
-    >>> median_export([{"seconds": 5.0}, {"seconds": 4.0}, {"seconds": 7.0}])
-    {'seconds': 5.0, 'repeats': 3, 'all_seconds': [5.0, 4.0, 7.0]}
+    >>> median_export([{"seconds": 5.0, "peak_rss_mb": 800}, {"seconds": 4.0, "peak_rss_mb": 820},
+    ...                {"seconds": 7.0, "peak_rss_mb": 790}])
+    {'seconds': 5.0, 'peak_rss_mb': 820, 'repeats': 3, 'all_seconds': [5.0, 4.0, 7.0]}
     """
     totals = [float(r["seconds"]) for r in records]
     mid = sorted(range(len(records)), key=totals.__getitem__)[(len(records) - 1) // 2]
-    return dict(records[mid], repeats=len(records), all_seconds=totals)
+    return dict(records[mid], peak_rss_mb=max(r["peak_rss_mb"] for r in records), repeats=len(records),
+                all_seconds=totals)
 
 
 def export_markdown(ex: dict) -> list[str]:
@@ -859,16 +862,17 @@ def export_markdown(ex: dict) -> list[str]:
     stages = ", ".join(f"{k} {_f(v, 1)} s" for k, v in ex.get("stages", {}).items())
     repeats = int(ex.get("repeats", 1))
     timed = (f"the median of {repeats} exports, each in a fresh process (all: "
-             f"{', '.join(_f(t, 1) for t in ex['all_seconds'])} s)" if repeats > 1 else "in a fresh process")
+             f"{', '.join(_f(t, 1) for t in ex['all_seconds'])} s;" if repeats > 1 else "in a fresh process (")
     return [
         "",
         "## Export: labelled points",
         "",
         f"`lift3d export --pointcloud` of the indoor `{ex.get('preset', '–')}` run above, {timed} "
-        f"({ex['threads']} thread{'s' if ex['threads'] != 1 else ''}): extraction (isosurface, its refinement "
+        f"{ex['threads']} thread{'s' if ex['threads'] != 1 else ''}): extraction (isosurface, its refinement "
         "onto the rendered surface, visibility, labels from the heads, instances) plus writing `points.ply`. "
         "Loading the checkpoint and importing Open3D/PyVista are not included. Targets for 1M points: 5 s "
-        "(the design target), and at most 30 s and 3 GiB peak memory. The stages are the median export's.",
+        "(the design target), and at most 30 s and 3 GiB peak memory. The stages are the median export's, the peak "
+        "memory the highest of any.",
         "",
         "| points | seconds | extract s | write s | peak MB | load s |",
         "|---|---|---|---|---|---|",

@@ -82,7 +82,8 @@ def add_parser(subparsers, verb: str) -> argparse.ArgumentParser:
                    help="ablations to run: steps (equal steps), time (equal wall time) or both (default: steps,time)")
     p.add_argument("--ablation-variants", type=_csv(str), default=None, metavar="LIST",
                    help="ablation variants to train, of base, base+S, base+S+L_seg, base+S+L_feat and all (default: "
-                        "all five); the tables compare the variants there are")
+                        "all five). The tables show the variants of this invocation: train some now and the rest "
+                        "later, then run once more with all of them (finished runs come from the cache)")
     p.add_argument("--no-scaling", action="store_true", help="skip the scaling measurements")
     p.add_argument("--no-export", action="store_true",
                    help="skip timing a 1M-point labelled export of the indoor run")

@@ -21,8 +21,9 @@ resolution when that is finer, so that a surface one grid cell thick is never mi
 lattice only inside coarse cells whose corner densities come within a factor 4 of ``τ`` (or straddle it),
 dilated by one coarse cell. Other fine nodes take the trilinear upsampling of the coarse lattice, which
 there lies entirely below ``τ/4`` or above ``4τ`` and so adds no surface. When the coarse lattice already
-has the export's resolution (the field's finest grid is as fine), it is the result and the second pass is
-skipped. Bounded fields are padded with
+has the output's resolution (the field's finest grid is as fine, or the output is no finer than 64³), it is
+the result and the second pass is skipped (``refined_nodes`` counts the second pass's nodes). Only nodes
+in the field's space are decoded (:func:`field_density`). Bounded fields are padded with
 one layer of zero density (their value outside the box), so surfaces cut by the box are closed. VTK's
 flying edges (PyVista) contours the result; its triangles are consistently oriented, with
 ``(v1 - v0) × (v2 - v0)`` pointing to lower density (outwards).
@@ -274,7 +275,7 @@ def _grid_to_normalized(g: np.ndarray, contraction: str) -> np.ndarray:
 
 
 def _refine_lattice(model: PanopticModel, coarse_sigma: np.ndarray, tau: float, factor: int, extent: float,
-                    contraction: str, max_radius: float | None, progress: bool) -> tuple[np.ndarray, np.ndarray]:
+                    contraction: str, limit: float | None, progress: bool) -> tuple[np.ndarray, np.ndarray]:
     """Pass 2 of :func:`field_isosurface`: the fine lattice (``factor`` fine cells per coarse cell), exact at
     the nodes of coarse cells near ``τ`` and trilinear from the coarse lattice elsewhere. Returns the fine
     volume ``[n, n, n]`` and the flat indices of the nodes queried."""
@@ -285,8 +286,7 @@ def _refine_lattice(model: PanopticModel, coarse_sigma: np.ndarray, tau: float, 
     cell_min = -F.max_pool3d(-cs, 2, stride=1)[0, 0]
     active = (cell_min < tau * REFINE_FACTOR) & (cell_max > tau / REFINE_FACTOR)
     active = F.max_pool3d(active[None, None].float(), 3, stride=1, padding=1)[0, 0] > 0
-    if contraction != "none":
-        limit = contracted_radius(UNBOUNDED_MAX_RADIUS if max_radius is None else max_radius, contraction)
+    if limit is not None:  # unbounded: no refinement beyond the crop radius (contracted units)
         centres = (torch.arange(coarse_cells, dtype=torch.float64) + 0.5) * (2 * extent / coarse_cells) - extent
         cx, cy, cz = torch.meshgrid(centres, centres, centres, indexing="ij")
         radius = torch.stack([cx.abs(), cy.abs(), cz.abs()]).amax(0)
@@ -354,17 +354,18 @@ def field_isosurface(model: PanopticModel, threshold: float, resolution: int = 2
 
     # Pass 1: coarse lattice everywhere.
     cn = coarse_cells + 1
-    # float32 (what the field takes) unless the contraction's far nodes need float64 to come out finite.
+    # float32 (what the field takes) for bounded scenes; contracted nodes stay float64 until uncontracted,
+    # which amplifies their rounding error near the boundary (1 / (2 - |g|)).
     lattice = _lattice_all(cn, extent, coarse_cells, np.float32 if contraction == "none" else np.float64)
     coarse_sigma = field_density(model, _grid_to_normalized(lattice, contraction)).reshape(cn, cn, cn)
     del lattice
-    if factor == 1:  # the coarse lattice is the fine one (a field grid as fine as the export): nothing to refine
-        volume, todo = coarse_sigma, np.zeros(0, np.int64)
-    else:
-        volume, todo = _refine_lattice(model, coarse_sigma, tau, factor, extent, contraction, max_radius, progress)
-    n = coarse_cells * factor + 1
     limit = None if contraction == "none" else contracted_radius(
         UNBOUNDED_MAX_RADIUS if max_radius is None else max_radius, contraction)
+    if factor == 1:  # the coarse lattice is the output's (as fine as the export asks): nothing to refine
+        volume, todo = coarse_sigma, np.zeros(0, np.int64)
+    else:
+        volume, todo = _refine_lattice(model, coarse_sigma, tau, factor, extent, contraction, limit, progress)
+    n = cells + 1
     step = 2.0 * extent / cells
     origin = -extent
     if contraction == "none":
