@@ -195,6 +195,22 @@ def test_reevaluate_names_a_cached_run_whose_folder_is_gone(tmp_path, capfd, mon
     assert json.loads(cached.read_text())["run"] == str(tmp_path / "gone")  # the cache is left as it was
 
 
+def test_a_run_cached_for_other_settings_is_an_error_not_a_stand_in(tmp_path, capfd, monkeypatch):
+    """An equal-time ablation run cached at another budget (same file name) must not stand in silently."""
+    monkeypatch.setenv("LIFT3D_NO_PROGRESS", "1")
+    out = tmp_path / "bench"
+    (out / "cache").mkdir(parents=True)
+    cached = out / "cache" / "run_indoor_s100_moderate_fast_base+S_equal-time.json"
+    over = {"losses": {"depth": 0.0, "segment": 0.0, "feature": 0.0}, "trainer": {"time_budget": 300.0},
+            "optim": {"steps": 100000}}
+    cached.write_text(json.dumps({"run": str(tmp_path / "run"), "metrics": {},
+                                  "spec": {"kind": "train", "preset": "fast", "seed": 100, "overrides": over}}))
+    rc = main(["bench", "--seeds", "100", "--only", "ablation", "--ablation-modes", "time", "--ablation-variants",
+               "base+S", "--ablation-budget", "600", "--out", str(out), "--docs-dir", str(tmp_path / "docs")])
+    err = capfd.readouterr().err.strip().splitlines()
+    assert rc == 2 and len(err) == 1 and cached.name in err[0] and "'time_budget': 300.0" in err[0], err
+
+
 # ------------------------------------------------------------------------------------------ end to end
 def test_bench_quick_one_row_over_two_seeds(tmp_path, monkeypatch):
     """One preset-table row trained on two scene seeds (tiny scenes, few steps): the report shows mean ± std,

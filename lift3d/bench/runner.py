@@ -232,13 +232,41 @@ def machine_info() -> dict:
     }
 
 
+#: What a cached measurement must share with the one asked for to stand in for it: the preset, the seed and
+#: the settings it trained with (e.g. the equal-time ablation's budget); the cache file's name already says
+#: which scene and variant (paths are left out: the same output folder may be named two ways).
+CACHE_IDENTITY = ("kind", "preset", "seed", "overrides", "num_points")
+
+
+def _check_cached_spec(out: Path, cached: dict | None, spec: dict) -> None:
+    """A cached result measured with other settings than asked for is an error naming the file (it would
+    otherwise stand in silently, e.g. a 300 s ablation run for a 600 s one).
+
+    Examples
+    --------
+    >>> _check_cached_spec(Path("c.json"), {"seed": 0, "overrides": {"a": 1}}, {"seed": 0, "overrides": {"a": 1}})
+    >>> _check_cached_spec(Path("c.json"), {"seed": 0, "overrides": {"a": 1}}, {"seed": 0, "overrides": {"a": 2}})
+    Traceback (most recent call last):
+    ...
+    lift3d.errors.InputError: c.json: cached for other settings (overrides: {'a': 1}, asked for {'a': 2}); delete it to measure again, or ask for what it holds
+    """
+    if cached is None:
+        return
+    for key in CACHE_IDENTITY:
+        if key in cached and key in spec and json.loads(json.dumps(cached[key])) != json.loads(json.dumps(spec[key])):
+            raise InputError(out, f"cached for other settings ({key}: {cached[key]}, asked for {spec[key]}); delete "
+                                  "it to measure again, or ask for what it holds")
+
+
 def _worker(spec: dict, out: Path, in_process: bool = False) -> dict:
     """Run one measurement in a fresh process (cached: an existing result is reused).
 
     ``in_process`` runs it in this process instead (``--quick``: saves importing torch and Open3D for every
     tiny run; peak memory then is this process's)."""
     if out.is_file():
-        return json.loads(out.read_text())
+        cached = json.loads(out.read_text())
+        _check_cached_spec(out, cached.get("spec"), spec)
+        return cached
     out.parent.mkdir(parents=True, exist_ok=True)
     spec_path = out.with_suffix(".spec.json")
     write_json_atomic(spec_path, spec)
@@ -531,8 +559,11 @@ def run_benchmark(cfg: BenchConfig) -> dict:
         if job.cache not in done:  # a run several sections share is trained (or skipped) once
             eval_spec = {"num_points": 5_000 if cfg.quick else 200_000, "points3d": job.points3d}
             if job.cache.is_file():  # finished before: its scene is not needed (nor made again)
+                cached = json.loads(job.cache.read_text())
+                _check_cached_spec(job.cache, cached.get("spec"), {"kind": "train", "preset": job.tags["preset"],
+                                                                   "seed": job.scene["seed"], "overrides": job.overrides})
                 done[job.cache] = (_reevaluate(job.cache, eval_spec, in_process=cfg.quick)
-                                   if cfg.reevaluate and job.section != "ablation" else json.loads(job.cache.read_text()))
+                                   if cfg.reevaluate and job.section != "ablation" else cached)
             else:
                 try:
                     scene = _scene(cfg, job.scene["kind"], job.scene["seed"], job.scene["noise"], job.scene["depth"],
