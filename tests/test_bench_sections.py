@@ -15,10 +15,10 @@ from lift3d.bench.runner import BenchConfig, run_benchmark
 
 def test_bench_quick_curves_ablation_bounded(tmp_path, monkeypatch):
     monkeypatch.setenv("LIFT3D_NO_PROGRESS", "1")
-    # Two of the five ablation variants (the MLP field and the grid one): every code path of the section, fewer
-    # runs.
-    monkeypatch.setattr(runner, "ABLATION", {k: runner.ABLATION[k] for k in ("base", "base+S")})
+    # Two of the five ablation variants (--ablation-variants: the MLP field and the grid one): every code path
+    # of the section, fewer runs.
     cfg = BenchConfig(out=tmp_path / "bench", scenes=("indoor", "outdoor"), presets=("fast",), seeds=(100,),
+                      ablation_variants=("base", "base+S"),
                       label_noise_levels=("hard",), pose_noise_levels=((0.5, 2.0),), preset_table=False,
                       scaling=False, export=False, profile=False, under_load=False, quick=True, progress=False,
                       docs_dir=tmp_path / "docs")
