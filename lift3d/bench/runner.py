@@ -558,10 +558,12 @@ def run_benchmark(cfg: BenchConfig) -> dict:
     for job in progress_bar(jobs, desc="bench runs", disable=not cfg.progress, unit="run"):
         if job.cache not in done:  # a run several sections share is trained (or skipped) once
             eval_spec = {"num_points": 5_000 if cfg.quick else 200_000, "points3d": job.points3d}
+            # What the run trains with (the cache file's name holds the rest: scene, noise, variant).
+            identity = {"kind": "train", "preset": job.tags["preset"], "seed": job.scene["seed"],
+                        "overrides": job.overrides}
             if job.cache.is_file():  # finished before: its scene is not needed (nor made again)
                 cached = json.loads(job.cache.read_text())
-                _check_cached_spec(job.cache, cached.get("spec"), {"kind": "train", "preset": job.tags["preset"],
-                                                                   "seed": job.scene["seed"], "overrides": job.overrides})
+                _check_cached_spec(job.cache, cached.get("spec"), identity)
                 done[job.cache] = (_reevaluate(job.cache, eval_spec, in_process=cfg.quick)
                                    if cfg.reevaluate and job.section != "ablation" else cached)
             else:
@@ -574,9 +576,8 @@ def run_benchmark(cfg: BenchConfig) -> dict:
                     results["skipped"].append({**job.tags, "section": job.section, "reason": str(exc)})
                     done[job.cache] = None
                     continue
-                spec = {"kind": "train", "scene": str(scene), "preset": job.tags["preset"],
-                        "seed": job.scene["seed"], "output_dir": str(cfg.out / "runs" / (job.section or "runs")),
-                        "overrides": job.overrides, "timing_repeats": 1 if cfg.quick else 10, **eval_spec}
+                spec = {**identity, "scene": str(scene), "output_dir": str(cfg.out / "runs" / (job.section or "runs")),
+                        "timing_repeats": 1 if cfg.quick else 10, **eval_spec}
                 done[job.cache] = _worker(spec, job.cache, in_process=cfg.quick)
         if done[job.cache] is None:
             continue

@@ -104,7 +104,7 @@ def add_parser(subparsers, verb: str) -> argparse.ArgumentParser:
 
 def run(args: argparse.Namespace) -> int:
     # here, not at module level: keeps `lift3d --help` cheap
-    from lift3d.bench.runner import SECTIONS, BenchConfig, plan_text, run_benchmark
+    from lift3d.bench.runner import ABLATION, SECTIONS, BenchConfig, plan_text, run_benchmark
     from lift3d.bench.tables import QUICK_SEEDS, REPORT_SEEDS
 
     switches = {"bounded": not args.no_bounded, "ablation": not args.no_ablation, "scaling": not args.no_scaling,
@@ -123,9 +123,9 @@ def run(args: argparse.Namespace) -> int:
     cfg = BenchConfig(out=Path(args.out), scenes=args.scenes, presets=args.presets, seeds=seeds,
                       noises=args.noises, inputs=args.inputs, ablation_steps=args.ablation_steps,
                       ablation_budget=args.ablation_budget, ablation_modes=tuple(args.ablation_modes),
+                      ablation_variants=tuple(ABLATION if args.ablation_variants is None else args.ablation_variants),
                       reevaluate=args.reevaluate, quick=args.quick,
-                      docs_dir=docs, **{SECTIONS[s]: on for s, on in switches.items()},
-                      **({} if args.ablation_variants is None else {"ablation_variants": tuple(args.ablation_variants)}))
+                      docs_dir=docs, **{SECTIONS[s]: on for s, on in switches.items()})
     if args.plan:
         print(plan_text(cfg.check()))
         return 0

@@ -243,6 +243,11 @@ class FieldSurface:
         return 2.0 * self.extent / self.resolution
 
 
+def _lattice_axis(nodes: int, extent: float, cells: int) -> np.ndarray:
+    """Grid-space coordinate of each node index along one axis (``cells`` cells over ``[-extent, extent]``)."""
+    return np.arange(nodes) * (2.0 * extent / cells) - extent
+
+
 def _lattice_coords(flat_index: np.ndarray, nodes: int, extent: float, cells: int) -> np.ndarray:
     """Grid-space coordinates ``[N, 3]`` of lattice nodes given flat C-order indices over ``[i, j, k]``.
 
@@ -251,13 +256,13 @@ def _lattice_coords(flat_index: np.ndarray, nodes: int, extent: float, cells: in
     >>> _lattice_coords(np.array([0, 1, 3, 26]), 3, 1.0, 2).tolist()
     [[-1.0, -1.0, -1.0], [-1.0, -1.0, 0.0], [-1.0, 0.0, -1.0], [1.0, 1.0, 1.0]]
     """
-    axis = np.arange(nodes) * (2.0 * extent / cells) - extent
+    axis = _lattice_axis(nodes, extent, cells)
     return axis[np.stack(np.unravel_index(flat_index, (nodes, nodes, nodes)), -1)]
 
 
 def _lattice_all(nodes: int, extent: float, cells: int, dtype=np.float64) -> np.ndarray:
     """Every node of the lattice, in flat C-order (what :func:`_lattice_coords` gives for ``arange(nodes³)``)."""
-    axis = (np.arange(nodes) * (2.0 * extent / cells) - extent).astype(dtype)
+    axis = _lattice_axis(nodes, extent, cells).astype(dtype)
     out = np.empty((nodes, nodes, nodes, 3), dtype)
     out[..., 0] = axis[:, None, None]
     out[..., 1] = axis[None, :, None]
