@@ -133,6 +133,36 @@ def test_render_label_coverage_decodes_fewer_samples_outside_training_only():
     assert float((ratio - 1).abs().max()) < 0.03, ratio
 
 
+def test_render_color_coverage_decodes_fewer_samples_outside_training_only():
+    """Renders outside training decode colour at the fewest samples holding 99 % of the weight, scaled up to
+    all of it: the colour stays within the dropped weight of what every sample gives; training decodes all."""
+    g = torch.Generator().manual_seed(6)
+    o = torch.rand(128, 3, generator=g) * 0.4 - torch.tensor([0.9, 0.2, 0.2])
+    d = torch.tensor([1.0, 0.0, 0.0]) + 0.1 * torch.randn(128, 3, generator=g)
+    d = d / d.norm(dim=-1, keepdim=True)
+    field = Slab().eval()
+    geometry = field.geometry
+    field.geometry = lambda x, space=None: (lambda s, *rest: (s * 0.5, *rest))(*geometry(x, space))  # a soft surface
+    decoded = []
+    color = field.color
+    field.color = lambda geo, dirs: (decoded.append(len(geo)), color(geo, dirs))[1]
+    none = torch.nn.ModuleList()
+    out = {}
+    for coverage in (0.0, 0.99):
+        cfg = SamplingConfig(proposal_resolutions=(), num_samples=96, render_color_coverage=coverage)
+        for training in (False, True):
+            decoded.clear()
+            torch.manual_seed(0)  # the same jittered samples in both training renders
+            r = render_rays(field, none, o, d, cfg, bounded=True, training=training, with_labels=False)
+            out[coverage, training] = (sum(decoded), r.rgb.detach(), r.opacity.detach())
+    assert out[0.99, True][0] == out[0.0, True][0]
+    assert out[0.99, False][0] < 0.9 * out[0.0, False][0]
+    assert torch.equal(out[0.99, True][1], out[0.0, True][1])  # training is unaffected
+    assert torch.equal(out[0.99, False][2], out[0.0, False][2])  # so is the opacity
+    # Each channel of a colour lies in [0, 1]: swapping 1 % of the weight moves it by at most 0.01.
+    assert float((out[0.99, False][1] - out[0.0, False][1]).abs().max()) < 0.01
+
+
 def _rays(n: int = 256):
     g = torch.Generator().manual_seed(5)
     d = torch.randn(n, 3, generator=g)

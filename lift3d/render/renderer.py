@@ -72,6 +72,14 @@ class SamplingConfig:
     whose weight spreads), test-view mIoU moved by at most 0.0008 and PQ^scene by at most 0.0014; on the
     benchmark's reporting runs mIoU by at most 0.001 and PQ^scene by -0.023 to +0.039 (instance matches at
     IoU 0.5 flip on small label changes)."""
+    render_color_coverage: float = 0.99
+    """Renders outside training: the colour decoder runs only on the fewest of a ray's samples (above
+    ``head_weight_threshold``) that hold this fraction of their weight, scaled up to the weight of all of them
+    (0 or 1 = every such sample, as in training). The point-cloud export (colour per point) is unaffected.
+    Chosen on four tuning runs (`fast`, rooms 5 and 6, with and without depth maps): 0.99 decodes 6.6 and
+    8.3 samples per ray instead of 10.0 and 12.3 with sensor depth (26 instead of 29 without: fog spreads
+    the weight) and moved test-view PSNR by -0.004 to -0.05 dB; 0.98 saved a sample more and cost up to
+    0.10 dB, 0.9 up to 0.48 dB."""
     near_gradient_distance: float = 0.5
     """Gradients of density and colour at a sample at distance ``t`` from its camera are scaled by
     ``min(1, (t / d)^2)`` (Philip & Deschaintre 2023, "Floaters No More"): space close to a camera is
@@ -239,18 +247,24 @@ def render_rays(
 
     # Decoders only where the sample matters (weights are constants for this choice); composited with an
     # index_add per ray over the chosen samples (no [rays x samples x channels] temporaries).
+    color_coverage = 0.0 if training else cfg.render_color_coverage
     with torch.no_grad():
-        idx = (w_flat > cfg.head_weight_threshold).nonzero().squeeze(1)
-        ray = torch.div(idx, n_samples, rounding_mode="floor")
-        rows = idx if geo_row is None else geo_row.index_select(0, idx)
+        if 0 < color_coverage < 1:
+            cidx, cscale = _label_samples(weights.detach(), 0, cfg.head_weight_threshold, color_coverage)
+        else:
+            cidx, cscale = (w_flat > cfg.head_weight_threshold).nonzero().squeeze(1), None
+        cray = torch.div(cidx, n_samples, rounding_mode="floor")
+        crows = cidx if geo_row is None else geo_row.index_select(0, cidx)
+    cw = w_flat.index_select(0, cidx)
+    if cscale is not None:
+        cw = cw * cscale
     # Without gradients, and with a row of features per sample, a field may decode and sum in one pass.
     fused = geo_row is None and not torch.is_grad_enabled()
     with record_function("render.field_color"):
-        rgb = field.composite_color(geo, dirs, idx, ray_starts(ray, n_rays), w_flat.index_select(0, idx)) \
-            if fused else None
+        rgb = field.composite_color(geo, dirs, cidx, ray_starts(cray, n_rays), cw) if fused else None
         if rgb is None:
-            rgb_k = field.color(geo.index_select(0, rows), dirs.index_select(0, ray))
-            rgb = _composite(n_rays, ray, w_flat.index_select(0, idx)[:, None] * rgb_k)
+            rgb_k = field.color(geo.index_select(0, crows), dirs.index_select(0, cray))
+            rgb = _composite(n_rays, cray, cw[:, None] * rgb_k)
     opacity = weights.sum(-1)
 
     if background is None:
@@ -273,7 +287,12 @@ def render_rays(
                 lray = torch.div(lidx, n_samples, rounding_mode="floor")
                 lrows = lidx if geo_row is None else geo_row.index_select(0, lidx)
         else:
-            lidx, lray, lrows, lscale = idx, ray, rows, None
+            lidx, lray, lrows, lscale = cidx, cray, crows, None
+            if cscale is not None:  # the colour took fewer samples: the labels take every one above the threshold
+                with torch.no_grad():
+                    lidx = (w_flat > cfg.head_weight_threshold).nonzero().squeeze(1)
+                    lray = torch.div(lidx, n_samples, rounding_mode="floor")
+                    lrows = lidx if geo_row is None else geo_row.index_select(0, lidx)
         lw = w_det.reshape(-1).index_select(0, lidx)
         if lscale is not None:
             lw = lw * lscale
