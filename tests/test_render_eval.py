@@ -39,7 +39,7 @@ from lift3d.eval.evaluate import (
 from lift3d.eval.metrics import miou, pq_scene
 from lift3d.eval.report import format_eval_table
 from lift3d.model.run import load_run
-from lift3d.render.images import FrameRender, render_frame
+from lift3d.render.images import MIN_SEGMENT_FRACTION, FrameRender, merge_small_segments, render_frame
 from lift3d.render.output import (
     RenderedOutputWriter,
     load_camera_path,
@@ -351,6 +351,7 @@ def test_eval_writes_metrics_json_with_every_key(trained, evaluated):
         assert set(m[part]) >= {"pq", "sq", "rq", "pq_strict", "sq_strict", "rq_strict"}
     scene = load_scene(trained["scene"])
     assert m["split"] == "test" and m["frames"] == len(scene.split("test"))
+    assert m["min_segment_fraction"] == MIN_SEGMENT_FRACTION
     assert m["step"] == 30 and m["run"] == str(trained["run"].resolve())
     assert isinstance(m["psnr"], float) and 5 < m["psnr"] < 60
     assert set(m["depth"]) >= {"abs_rel", "rmse", "mae", "n_valid"} and m["depth"]["n_valid"] > 0
@@ -462,6 +463,9 @@ def test_render_rejects_bad_options(trained, tmp_path, capsys):
     assert main(["render", "--run", str(trained["run"]), "--output-dir", str(tmp_path / "o"), "--downscale", "0",
                  "--quiet"]) == 2
     assert "--downscale" in capsys.readouterr().err
+    assert main(["render", "--run", str(trained["run"]), "--output-dir", str(tmp_path / "o"),
+                 "--min-segment-fraction", "1.5", "--quiet"]) == 2
+    assert "--min-segment-fraction: must be in [0, 1), got 1.5" in capsys.readouterr().err
     with pytest.raises(SystemExit):
         main(["render", "--run", str(trained["run"]), "--output-dir", str(tmp_path / "o"), "--outputs", "normals"])
 
@@ -522,3 +526,45 @@ def test_eval_scores_frames_at_their_true_poses(trained, evaluated, tmp_path, ca
     assert at_written["poses"]["scored_at"] == "transform_matrix"
     # (The 30-step field is too blurry for a reliable sign; the views must differ.)
     assert max(abs(a - b) for a, b in zip(at_written["psnr_per_frame"], at_true["psnr_per_frame"])) > 0.02
+
+
+def test_small_thing_segments_take_their_surroundings_labels():
+    """A few-pixel (category, instance) pair takes the labels around it; stuff, larger segments and a segment
+    of one object split over the frame (large in total) stay; 0 keeps everything."""
+    sem = np.full((20, 20), 1)
+    inst = np.zeros((20, 20), int)
+    sem[2:12, 2:12], inst[2:12, 2:12] = 5, 3  # an object: 100 pixels
+    sem[5, 5], inst[5, 5] = 5, 7  # a one-pixel fragment of another instance inside it
+    sem[15, 15], inst[15, 15] = 6, 1  # a one-pixel thing of another class on stuff
+    sem[15:17, 2:4], inst[15:17, 2:4] = 5, 3  # a 4-pixel piece of the 100-pixel object elsewhere: kept
+    s, i = merge_small_segments(sem, inst, min_pixels=3)
+    assert (s[5, 5], i[5, 5]) == (5, 3)
+    assert (s[15, 15], i[15, 15]) == (1, 0)
+    assert (s[15:17, 2:4] == 5).all() and (i[15:17, 2:4] == 3).all()
+    changed = (s != sem) | (i != inst)
+    assert changed.sum() == 2 and sem[5, 5] == 5 and inst[5, 5] == 7  # the inputs are not modified
+    s0, i0 = merge_small_segments(sem, inst, 0)
+    assert np.array_equal(s0, sem) and np.array_equal(i0, inst)
+    only_small = merge_small_segments(np.full((2, 2), 5), np.ones((2, 2), int), 10)  # nothing to take labels from
+    assert (only_small[0] == 5).all() and (only_small[1] == 1).all()
+
+
+def test_render_frame_merges_small_segments_unless_told_not_to(trained):
+    loaded = load_run(trained["run"], "cpu")
+    scene = loaded.scene()
+    rays = loaded.rays(scene)
+    i = int(scene.split("test")[0])
+    raw = render_frame(loaded.model, rays, i, loaded.norm.scale, min_segment_fraction=0.0)
+    h, w = raw.semantic.shape
+    expect = merge_small_segments(raw.semantic, raw.instance, MIN_SEGMENT_FRACTION * h * w)
+    ref = render_frame(loaded.model, rays, i, loaded.norm.scale)
+    assert np.array_equal(ref.semantic, expect[0]) and np.array_equal(ref.instance, expect[1])
+    big = render_frame(loaded.model, rays, i, loaded.norm.scale, min_segment_fraction=0.5)
+    pairs = {(int(a), int(b)) for a, b in zip(big.semantic.ravel(), big.instance.ravel()) if b > 0}
+    assert all(((big.semantic == a) & (big.instance == b)).sum() >= 0.5 * h * w for a, b in pairs)
+
+
+def test_eval_rejects_a_bad_segment_fraction(trained, capsys):
+    assert main(["eval", "--run", str(trained["run"]), "--min-segment-fraction", "-0.1", "--no-points3d",
+                 "--timing-repeats", "0", "--quiet"]) == 2
+    assert "--min-segment-fraction: must be in [0, 1), got -0.1" in capsys.readouterr().err

@@ -48,6 +48,9 @@ def add_parser(subparsers, verb: str) -> argparse.ArgumentParser:
     p.add_argument("--timing-repeats", type=int, default=10, metavar="N",
                    help="timed renders of 2048 rays (median reported; 0 = skip; default: 10)")
     p.add_argument("--chunk-size", type=int, default=None, metavar="RAYS", help="rays rendered at once")
+    p.add_argument("--min-segment-fraction", type=float, default=None, metavar="F",
+                   help="thing segments under this fraction of a rendered frame take the labels around them "
+                        "before scoring (default: 0.001; 0 scores the raw argmax labels)")
     p.add_argument("--device", default="auto", metavar="DEV", help="auto, cpu or cuda[:N] (default: auto)")
     p.add_argument("--threads", type=int, default=None, metavar="N",
                    help="CPU threads (default: $LIFT3D_THREADS or every CPU)")
@@ -60,6 +63,7 @@ def run(args: argparse.Namespace) -> int:
     """Evaluate, print the table, say where the metrics went."""
     # here, not at module level: keeps `lift3d --help` cheap
     from lift3d.eval.evaluate import evaluate_run
+    from lift3d.render.images import MIN_SEGMENT_FRACTION
     from lift3d.eval.report import format_eval_table
     from lift3d.utils.device import set_threads
 
@@ -73,7 +77,9 @@ def run(args: argparse.Namespace) -> int:
     m = evaluate_run(args.run, split=args.split, data=args.data, with_points3d=not args.no_points3d,
                      progress=not args.quiet, device=args.device, json_path=args.json, num_points=args.num_points,
                      timing_repeats=args.timing_repeats, chunk_size=args.chunk_size,
-                     true_poses=not args.no_true_poses)
+                     true_poses=not args.no_true_poses,
+                     min_segment_fraction=MIN_SEGMENT_FRACTION if args.min_segment_fraction is None
+                     else args.min_segment_fraction)
     print(format_eval_table(m))
     where = f"{m['run']}/metrics.json" + (f" and {args.json}" if args.json else "")
     print(f"wrote {where}")

@@ -46,6 +46,9 @@ def add_parser(subparsers, verb: str) -> argparse.ArgumentParser:
                    help="do not add depth_vis / semantic_vis / instance_vis beside depth / semantic / instance")
     p.add_argument("--data", metavar="DIR", help="the scene folder, if it moved since training")
     p.add_argument("--downscale", type=int, default=1, metavar="N", help="render N times smaller images (default: 1)")
+    p.add_argument("--min-segment-fraction", type=float, default=None, metavar="F",
+                   help="thing segments under this fraction of a frame take the labels around them "
+                        "(default: 0.001; 0 writes the raw argmax labels)")
     p.add_argument("--chunk-size", type=int, default=None, metavar="RAYS",
                    help="rays rendered at once (lower it when memory is short; default: the run's setting)")
     p.add_argument("--device", default="auto", metavar="DEV", help="auto, cpu or cuda[:N] (default: auto)")
@@ -59,6 +62,7 @@ def add_parser(subparsers, verb: str) -> argparse.ArgumentParser:
 def run(args: argparse.Namespace) -> int:
     """Render, then print one line saying what was written where."""
     # here, not at module level: keeps `lift3d --help` cheap (torch)
+    from lift3d.render.images import MIN_SEGMENT_FRACTION
     from lift3d.render.output import render_to_folder
     from lift3d.utils.device import set_threads
 
@@ -67,6 +71,7 @@ def run(args: argparse.Namespace) -> int:
         args.run, args.output_dir, args.outputs, split=args.split, camera_path=args.camera_path, data=args.data,
         downscale=args.downscale, chunk_size=args.chunk_size, device=args.device, previews=not args.no_previews,
         progress=not args.quiet,
+        min_segment_fraction=MIN_SEGMENT_FRACTION if args.min_segment_fraction is None else args.min_segment_fraction,
     )
     what = f"camera path {args.camera_path}" if args.camera_path else f"split {args.split}"
     print(f"lift3d render: {len(res.stems)} frames of {what} ({res.size[1]}x{res.size[0]}) in {res.seconds:.1f} s "

@@ -38,7 +38,7 @@ from lift3d.eval.metrics import miou, pq_scene
 from lift3d.eval.points3d import points3d
 from lift3d.export.pointcloud import SOURCES, extract_labelled_points
 from lift3d.model.run import LoadedRun, load_run
-from lift3d.render.images import render_frame
+from lift3d.render.images import MIN_SEGMENT_FRACTION, render_frame
 from lift3d.utils.atomic import write_text_atomic
 from lift3d.utils.files import check_writable
 from lift3d.utils.progress import progress_bar
@@ -171,7 +171,7 @@ def compute_2d_metrics(preds, gts, things: Iterable[int], stuff: Iterable[int]) 
 
 # --------------------------------------------------------------------------------------- inputs
 def render_split(loaded: LoadedRun, scene: Scene, frames: Sequence[int], *, chunk_size: int | None = None,
-                 progress: bool = True) -> RenderedSplit:
+                 progress: bool = True, min_segment_fraction: float = MIN_SEGMENT_FRACTION) -> RenderedSplit:
     """Render ``frames`` of ``scene`` at full resolution with the run's model.
 
     Parameters
@@ -186,11 +186,15 @@ def render_split(loaded: LoadedRun, scene: Scene, frames: Sequence[int], *, chun
         Rays per rendering chunk.
     progress : bool
         Show a progress bar.
+    min_segment_fraction : float
+        Thing segments under this fraction of a frame take their surroundings' labels
+        (:func:`lift3d.render.images.merge_small_segments`; 0 scores the raw argmax labels).
     """
     rays = loaded.rays(scene)
     out = RenderedSplit(list(map(int, frames)), [], [], [], [], [])
     for i in progress_bar(out.frames, desc="eval: render", disable=not progress, unit="frame"):
-        r = render_frame(loaded.model, rays, i, loaded.norm.scale, chunk_size=chunk_size)
+        r = render_frame(loaded.model, rays, i, loaded.norm.scale, chunk_size=chunk_size,
+                         min_segment_fraction=min_segment_fraction)
         h, w = r.rgb.shape[:2]
         sem = r.semantic if r.semantic is not None else np.zeros((h, w), np.int64)
         inst = r.instance if r.instance is not None else np.zeros((h, w), np.int64)
@@ -522,6 +526,7 @@ def evaluate_run(
     timing_repeats: int = 10,
     chunk_size: int | None = None,
     true_poses: bool = True,
+    min_segment_fraction: float = MIN_SEGMENT_FRACTION,
 ) -> dict:
     """Evaluate a trained run: render the split, score it and its pseudo-label baseline, time rendering.
 
@@ -555,6 +560,10 @@ def evaluate_run(
         Render scored frames that have a true pose (``gt_transform_matrix``) from it rather than from their
         written ``transform_matrix`` (:func:`scoring_poses`); the 3D block is unaffected (it is the export's
         point cloud, built from the training views).
+    min_segment_fraction : float
+        Thing segments under this fraction of a rendered frame take their surroundings' labels before scoring
+        (:func:`lift3d.render.images.merge_small_segments`; 0 scores the raw argmax labels). Recorded in
+        ``metrics.json``.
 
     Returns
     -------
@@ -578,7 +587,10 @@ def evaluate_run(
         raise InputError(scene.root / "transforms.json", f"split {split!r} has no frames")
 
     scored_scene, poses = scoring_poses(scene, frames, true_poses)
-    rendered = render_split(loaded, scored_scene, frames, chunk_size=chunk_size, progress=progress)
+    if not 0.0 <= min_segment_fraction < 1.0:
+        raise InputError("--min-segment-fraction", f"must be in [0, 1), got {min_segment_fraction}")
+    rendered = render_split(loaded, scored_scene, frames, chunk_size=chunk_size, progress=progress,
+                            min_segment_fraction=min_segment_fraction)
     metrics: dict[str, Any] = {
         "run": str(Path(run_path).resolve()),
         "step": int(loaded.step),
@@ -589,6 +601,7 @@ def evaluate_run(
         "data": str(scene.root.resolve()),
         "lift3d_version": __version__,
         "min_area": MIN_AREA,
+        "min_segment_fraction": float(min_segment_fraction),
         "poses": poses,
     }
     metrics.update(metrics_from_arrays(scene, frames, rendered))

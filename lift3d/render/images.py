@@ -6,8 +6,14 @@ from dataclasses import dataclass
 
 import numpy as np
 import torch
+from scipy import ndimage
 
 from lift3d.render.rays import RayGenerator
+
+#: Thing segments (category, instance) covering less than this fraction of a rendered frame take the labels of
+#: the pixels around them (:func:`merge_small_segments`): 16 pixels of a 128 × 128 frame. Chosen on the
+#: tuning runs (rooms 5 and 6, `fast`, with and without depth maps), see docs/benchmarks.md.
+MIN_SEGMENT_FRACTION = 0.001
 
 
 @dataclass
@@ -22,8 +28,55 @@ class FrameRender:
     confidence: np.ndarray | None  # [H, W] float32 probability of the chosen class
 
 
+def merge_small_segments(semantic: np.ndarray, instance: np.ndarray, min_pixels: float) -> tuple[np.ndarray, np.ndarray]:
+    """Relabel the thing segments of one frame that cover fewer than ``min_pixels`` pixels.
+
+    A thing segment is every pixel of the frame with one (category, instance id), instance > 0. Where the
+    argmax of the semantic or instance channels flips near a boundary, the render holds segments of a few
+    pixels whose (category, instance) pair belongs to no object: each counts as a false positive in PQ and
+    shows as speckle in the panoptic image. Their pixels take the labels of the nearest pixel outside every
+    such segment (stuff or another thing), as a panoptic post-process drops small segments.
+
+    Parameters
+    ----------
+    semantic, instance : np.ndarray
+        ``[H, W]`` integer category ids and instance ids (0 on stuff).
+    min_pixels : float
+        Segments with fewer pixels are merged; 0 keeps every segment.
+
+    Returns
+    -------
+    (np.ndarray, np.ndarray)
+        New semantic and instance maps (the inputs are not modified).
+
+    Examples
+    --------
+    >>> sem = np.array([[1, 1, 1, 1], [1, 3, 3, 1], [1, 3, 4, 1]])
+    >>> inst = np.array([[0, 0, 0, 0], [0, 2, 2, 0], [0, 2, 5, 0]])
+    >>> s, i = merge_small_segments(sem, inst, 2)  # the one-pixel (4, 5) segment joins its neighbour
+    >>> s.tolist(), i.tolist()
+    ([[1, 1, 1, 1], [1, 3, 3, 1], [1, 3, 3, 1]], [[0, 0, 0, 0], [0, 2, 2, 0], [0, 2, 2, 0]])
+    """
+    semantic, instance = np.array(semantic), np.array(instance)
+    thing = instance > 0
+    if min_pixels <= 0 or not thing.any():
+        return semantic, instance
+    pairs = np.stack([semantic[thing], instance[thing]], 1)
+    _, inverse, counts = np.unique(pairs, axis=0, return_inverse=True, return_counts=True)
+    small = np.zeros(semantic.shape, bool)
+    small[thing] = counts[inverse.ravel()] < min_pixels
+    if not small.any() or small.all():
+        return semantic, instance
+    # Index of the nearest pixel that is not in a small segment, for every pixel.
+    _, (iy, ix) = ndimage.distance_transform_edt(small, return_indices=True)
+    semantic[small] = semantic[iy[small], ix[small]]
+    instance[small] = instance[iy[small], ix[small]]
+    return semantic, instance
+
+
 def render_frame(model, rays: RayGenerator, i: int, world_scale: float, *, downscale: int = 1,
-                 with_labels: bool = True, chunk_size: int | None = None, progress: bool = False) -> FrameRender:
+                 with_labels: bool = True, chunk_size: int | None = None, progress: bool = False,
+                 min_segment_fraction: float = MIN_SEGMENT_FRACTION) -> FrameRender:
     """Render frame ``i`` of ``rays``.
 
     Parameters
@@ -37,6 +90,9 @@ def render_frame(model, rays: RayGenerator, i: int, world_scale: float, *, downs
         Normalisation scale (normalised units per world unit) to report depth in world units.
     downscale : int
         Render every ``downscale``-th pixel block (faster previews).
+    min_segment_fraction : float
+        Thing segments under this fraction of the frame's pixels take their surroundings' labels
+        (:func:`merge_small_segments`; 0 keeps the raw argmax labels).
     """
     was_training = model.training
     model.eval()
@@ -52,6 +108,7 @@ def render_frame(model, rays: RayGenerator, i: int, world_scale: float, *, downs
         c, k, p = model.panoptic_from_probs(out["semantic"], out.get("instance"))
         sem, inst, conf = (x.view(h, w).cpu().numpy() for x in (c, k, p))
         conf = conf.astype(np.float32)
+        sem, inst = merge_small_segments(sem, inst, min_segment_fraction * h * w)
     return FrameRender(
         rgb=out["rgb"].clamp(0, 1).view(h, w, 3).cpu().numpy().astype(np.float32),
         depth=torch.where(opacity > 1e-4, depth, torch.zeros_like(depth)).view(h, w).cpu().numpy().astype(np.float32),

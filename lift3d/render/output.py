@@ -39,7 +39,7 @@ from lift3d.data.categories import Category
 from lift3d.data.images import write_label_map, write_panoptic_png, write_rgb
 from lift3d.errors import InputError
 from lift3d.model.run import load_run
-from lift3d.render.images import FrameRender, render_frame
+from lift3d.render.images import MIN_SEGMENT_FRACTION, FrameRender, render_frame
 from lift3d.render.rays import RayGenerator
 from lift3d.utils.atomic import write_json_atomic
 from lift3d.utils.colors import hash_colors
@@ -544,6 +544,7 @@ def render_to_folder(
     device: str = "auto",
     previews: bool = True,
     progress: bool = True,
+    min_segment_fraction: float = MIN_SEGMENT_FRACTION,
 ) -> RenderResult:
     """Render a split of the run's scene (or a camera path) into ``output_dir``.
 
@@ -569,6 +570,9 @@ def render_to_folder(
         ``auto``, ``cpu`` or ``cuda[:N]``.
     previews, progress : bool
         Colourised previews; progress bar.
+    min_segment_fraction : float
+        Thing segments under this fraction of a frame take their surroundings' labels
+        (:func:`lift3d.render.images.merge_small_segments`; 0 writes the raw argmax labels).
 
     Returns
     -------
@@ -576,6 +580,8 @@ def render_to_folder(
     """
     if downscale < 1:
         raise InputError("--downscale", f"must be a positive integer (got {downscale})")
+    if not 0.0 <= min_segment_fraction < 1.0:
+        raise InputError("--min-segment-fraction", f"must be in [0, 1), got {min_segment_fraction}")
     if chunk_size is not None and chunk_size < 1:
         raise InputError("--chunk-size", f"must be a positive number of rays (got {chunk_size})")
     names = resolve_outputs(outputs, previews)
@@ -608,7 +614,7 @@ def render_to_folder(
     size = (0, 0)
     for i, stem in progress_bar(list(zip(indices, stems)), desc="render", disable=not progress, unit="frame"):
         fr = render_frame(loaded.model, rays, i, loaded.norm.scale, downscale=downscale, with_labels=needs_labels,
-                          chunk_size=chunk_size)
+                          chunk_size=chunk_size, min_segment_fraction=min_segment_fraction)
         if size == (0, 0):
             size = fr.rgb.shape[:2]
         writer.write(stem, fr)
