@@ -273,7 +273,7 @@ def check_config(cfg: Config, where: str) -> Config:
     """Settings their types do not check: ``field.kind`` names a registered kind; fractions lie in [0, 1]."""
     if cfg.field.kind not in FIELD_KINDS:
         raise InputError(where, f"field.kind: unknown field kind {cfg.field.kind!r} (known: {', '.join(FIELD_KINDS)})")
-    for name in ("render_label_coverage", "render_color_coverage"):
+    for name in ("render_label_coverage", "render_color_coverage", "train_label_coverage"):
         coverage = getattr(cfg.sampling, name)
         if not 0.0 <= coverage <= 1.0:
             raise InputError(where, f"sampling.{name}: must be in [0, 1], got {coverage}")

@@ -72,6 +72,10 @@ class SamplingConfig:
     whose weight spreads), test-view mIoU moved by at most 0.0008 and PQ^scene by at most 0.0014; on the
     benchmark's reporting runs mIoU by at most 0.001 and PQ^scene by -0.023 to +0.039 (instance matches at
     IoU 0.5 flip on small label changes)."""
+    train_label_coverage: float = 0.0
+    """Training renders: of a ray's ``label_max_samples`` highest-weight samples, the semantic/instance
+    decoders run (and learn) only on the fewest that hold this fraction of their weight, scaled up to the
+    weight of all of them, as ``render_label_coverage`` does outside training (0 = all of them; in [0, 1])."""
     render_color_coverage: float = 0.99
     """Renders outside training: the colour decoder runs only on the fewest of a ray's samples (above
     ``head_weight_threshold``) that hold this fraction of their weight, scaled up to the weight of all of them
@@ -250,7 +254,7 @@ def render_rays(
     color_coverage = 0.0 if training else cfg.render_color_coverage
     with torch.no_grad():
         if 0 < color_coverage < 1:
-            cidx, cscale = _label_samples(weights.detach(), 0, cfg.head_weight_threshold, color_coverage)
+            cidx, cscale = _decoder_samples(weights.detach(), 0, cfg.head_weight_threshold, color_coverage)
         else:
             cidx, cscale = (w_flat > cfg.head_weight_threshold).nonzero().squeeze(1), None
         cray = torch.div(cidx, n_samples, rounding_mode="floor")
@@ -280,10 +284,10 @@ def render_rays(
     semantic = instance = None
     if with_labels:
         w_det = weights.detach()  # labels must not carve geometry
-        coverage = 0.0 if training else cfg.render_label_coverage
+        coverage = cfg.train_label_coverage if training else cfg.render_label_coverage
         if 0 < cfg.label_max_samples < n_samples or coverage > 0:
             with torch.no_grad():
-                lidx, lscale = _label_samples(w_det, cfg.label_max_samples, cfg.head_weight_threshold, coverage)
+                lidx, lscale = _decoder_samples(w_det, cfg.label_max_samples, cfg.head_weight_threshold, coverage)
                 lray = torch.div(lidx, n_samples, rounding_mode="floor")
                 lrows = lidx if geo_row is None else geo_row.index_select(0, lidx)
         else:
@@ -465,20 +469,21 @@ def scale_gradient(x: Tensor, scale: Tensor) -> Tensor:
     return _ScaleGradient.apply(x, scale)
 
 
-def _label_samples(weights: Tensor, cap: int, threshold: float,
-                   coverage: float = 0.0) -> tuple[Tensor, Tensor | None]:
-    """The samples the label decoders run on: the ``cap`` (0: all) highest-weight samples of every ray that
-    pass the weight ``threshold``; with ``coverage`` > 0 only the fewest of them that hold that fraction of
-    their weight. ``weights`` ``[R, S]`` → flat indices ``[K]`` and, with ``coverage``, a factor ``[K]`` per
-    sample that scales its ray's kept weight up to that of all ``cap`` samples (so composited logits, and
-    the confidence read from them, keep their scale); else None.
+def _decoder_samples(weights: Tensor, cap: int, threshold: float,
+                     coverage: float = 0.0) -> tuple[Tensor, Tensor | None]:
+    """The samples a decoder runs on (labels: ``cap`` = ``label_max_samples``; colour outside training: no
+    cap): the ``cap`` (0: all) highest-weight samples of every ray that pass the weight ``threshold``; with
+    ``coverage`` > 0 only the fewest of them that hold that fraction of their weight. ``weights`` ``[R, S]``
+    → flat indices ``[K]`` and, with ``coverage``, a factor ``[K]`` per sample that scales its ray's kept
+    weight up to that of all ``cap`` samples (so composited logits, and the confidence read from them, keep
+    their scale); else None.
 
     Examples
     --------
     >>> w = torch.tensor([[0.0, 0.9, 0.05, 0.03, 0.02], [0.1, 0.3, 0.2, 0.25, 0.0]])
-    >>> _label_samples(w, 3, 1e-4)[0].tolist(), _label_samples(w, 3, 1e-4, coverage=0.6)[0].tolist()
+    >>> _decoder_samples(w, 3, 1e-4)[0].tolist(), _decoder_samples(w, 3, 1e-4, coverage=0.6)[0].tolist()
     ([1, 2, 3, 6, 8, 7], [1, 6, 8])
-    >>> [round(x, 3) for x in _label_samples(w, 3, 1e-4, coverage=0.6)[1].tolist()]  # 0.98 / 0.9, 0.75 / 0.55
+    >>> [round(x, 3) for x in _decoder_samples(w, 3, 1e-4, coverage=0.6)[1].tolist()]  # 0.98 / 0.9, 0.75 / 0.55
     [1.089, 1.364, 1.364]
     """
     n_rays, n_samples = weights.shape
