@@ -75,15 +75,17 @@ class SamplingConfig:
     train_label_coverage: float = 0.0
     """Training renders: of a ray's ``label_max_samples`` highest-weight samples, the semantic/instance
     decoders run (and learn) only on the fewest that hold this fraction of their weight, scaled up to the
-    weight of all of them, as ``render_label_coverage`` does outside training (0 = all of them; in [0, 1])."""
-    render_color_coverage: float = 0.99
+    weight of all of them, as ``render_label_coverage`` does outside training (0 = all of them; in [0, 1]).
+    0.9 made `fast` steps 11 % faster (indoor seed 0) but cost room 6 of the tuning rooms 0.07 PQ^scene and
+    0.014 point mIoU (room 5: no change), so it is off (docs/benchmarks.md)."""
+    render_color_coverage: float = 0.0
     """Renders outside training: the colour decoder runs only on the fewest of a ray's samples (above
     ``head_weight_threshold``) that hold this fraction of their weight, scaled up to the weight of all of them
     (0 or 1 = every such sample, as in training). The point-cloud export (colour per point) is unaffected.
-    Chosen on four tuning runs (`fast`, rooms 5 and 6, with and without depth maps): 0.99 decodes 6.6 and
-    8.3 samples per ray instead of 10.0 and 12.3 with sensor depth (26 instead of 29 without: fog spreads
-    the weight) and moved test-view PSNR by -0.004 to -0.05 dB; 0.98 saved a sample more and cost up to
-    0.10 dB, 0.9 up to 0.48 dB."""
+    Measured on the `fast` runs of rooms 0-2 with sensor depth: 0.99 decodes a third fewer colour samples
+    (7.6-11.3 per ray instead of 11.6-16.6) at -0.01 dB PSNR, but the 2048-ray render was no faster (medians
+    29.2/28.1/28.0 ms against 28.2/28.6/27.2 ms, alternating in one process): the per-ray sort costs what the
+    skipped decodes save. Off by default."""
     near_gradient_distance: float = 0.5
     """Gradients of density and colour at a sample at distance ``t`` from its camera are scaled by
     ``min(1, (t / d)^2)`` (Philip & Deschaintre 2023, "Floaters No More"): space close to a camera is
