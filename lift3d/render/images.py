@@ -61,8 +61,9 @@ def merge_small_segments(semantic: np.ndarray, instance: np.ndarray, min_pixels:
     thing = instance > 0
     if min_pixels <= 0 or not thing.any():
         return semantic, instance
-    pairs = np.stack([semantic[thing], instance[thing]], 1)
-    _, inverse, counts = np.unique(pairs, axis=0, return_inverse=True, return_counts=True)
+    # One int64 key per (category, instance) pair: a 1-D unique is several times faster than unique rows.
+    key = semantic[thing].astype(np.int64) * (int(instance.max()) + 1) + instance[thing]
+    _, inverse, counts = np.unique(key, return_inverse=True, return_counts=True)
     small = np.zeros(semantic.shape, bool)
     small[thing] = counts[inverse.ravel()] < min_pixels
     if not small.any() or small.all():
