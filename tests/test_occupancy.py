@@ -101,16 +101,27 @@ def test_skipping_empty_cells_and_terminating_rays_is_exact_up_to_the_thresholds
         assert torch.allclose(a, b, atol=2e-3), (a - b).abs().max()
 
 
+def _rays_towards_slab(seed: int, n: int = 128):
+    """``n`` rays from in front of :class:`Slab`, pointing at it within about 6 degrees of +x."""
+    g = torch.Generator().manual_seed(seed)
+    o = torch.rand(n, 3, generator=g) * 0.4 - torch.tensor([0.9, 0.2, 0.2])
+    d = torch.tensor([1.0, 0.0, 0.0]) + 0.1 * torch.randn(n, 3, generator=g)
+    return o, d / d.norm(dim=-1, keepdim=True)
+
+
+def _softened_slab(density_scale: float) -> Slab:
+    """A :class:`Slab` (eval mode) whose density is scaled by ``density_scale``."""
+    field = Slab().eval()
+    geometry = field.geometry
+    field.geometry = lambda x, space=None: (lambda s, *rest: (s * density_scale, *rest))(*geometry(x, space))
+    return field
+
+
 def test_render_label_coverage_decodes_fewer_samples_outside_training_only():
     """Renders outside training decode labels at the fewest top samples holding 90 % of the top-8 weight,
     and the labels stay close to what all eight give; training renders decode all eight."""
-    g = torch.Generator().manual_seed(4)
-    o = torch.rand(128, 3, generator=g) * 0.4 - torch.tensor([0.9, 0.2, 0.2])
-    d = torch.tensor([1.0, 0.0, 0.0]) + 0.1 * torch.randn(128, 3, generator=g)
-    d = d / d.norm(dim=-1, keepdim=True)
-    field = Slab().eval()
-    geometry = field.geometry
-    field.geometry = lambda x, space=None: (lambda s, *rest: (s * 0.08, *rest))(*geometry(x, space))  # translucent
+    o, d = _rays_towards_slab(seed=4)
+    field = _softened_slab(0.08)  # translucent
     decoded = []
     labels = field.labels
     field.labels = lambda u, geo: (decoded.append(len(u)), labels(u, geo))[1]
@@ -136,13 +147,8 @@ def test_render_label_coverage_decodes_fewer_samples_outside_training_only():
 def test_render_color_coverage_decodes_fewer_samples_outside_training_only():
     """Renders outside training decode colour at the fewest samples holding 99 % of the weight, scaled up to
     all of it: the colour stays within the dropped weight of what every sample gives; training decodes all."""
-    g = torch.Generator().manual_seed(6)
-    o = torch.rand(128, 3, generator=g) * 0.4 - torch.tensor([0.9, 0.2, 0.2])
-    d = torch.tensor([1.0, 0.0, 0.0]) + 0.1 * torch.randn(128, 3, generator=g)
-    d = d / d.norm(dim=-1, keepdim=True)
-    field = Slab().eval()
-    geometry = field.geometry
-    field.geometry = lambda x, space=None: (lambda s, *rest: (s * 0.5, *rest))(*geometry(x, space))  # a soft surface
+    o, d = _rays_towards_slab(seed=6)
+    field = _softened_slab(0.5)  # a soft surface
     decoded = []
     color = field.color
     field.color = lambda geo, dirs: (decoded.append(len(geo)), color(geo, dirs))[1]
