@@ -63,8 +63,8 @@ def run(args: argparse.Namespace) -> int:
     """Evaluate, print the table, say where the metrics went."""
     # here, not at module level: keeps `lift3d --help` cheap
     from lift3d.eval.evaluate import evaluate_run
-    from lift3d.render.images import MIN_SEGMENT_FRACTION
     from lift3d.eval.report import format_eval_table
+    from lift3d.render.images import MIN_SEGMENT_FRACTION
     from lift3d.utils.device import set_threads
 
     if args.num_points < 1:

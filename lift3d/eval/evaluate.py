@@ -38,7 +38,7 @@ from lift3d.eval.metrics import miou, pq_scene
 from lift3d.eval.points3d import points3d
 from lift3d.export.pointcloud import SOURCES, extract_labelled_points
 from lift3d.model.run import LoadedRun, load_run
-from lift3d.render.images import MIN_SEGMENT_FRACTION, render_frame
+from lift3d.render.images import MIN_SEGMENT_FRACTION, check_min_segment_fraction, render_frame
 from lift3d.utils.atomic import write_text_atomic
 from lift3d.utils.files import check_writable
 from lift3d.utils.progress import progress_bar
@@ -587,8 +587,7 @@ def evaluate_run(
         raise InputError(scene.root / "transforms.json", f"split {split!r} has no frames")
 
     scored_scene, poses = scoring_poses(scene, frames, true_poses)
-    if not 0.0 <= min_segment_fraction < 1.0:
-        raise InputError("--min-segment-fraction", f"must be in [0, 1), got {min_segment_fraction}")
+    check_min_segment_fraction(min_segment_fraction)
     rendered = render_split(loaded, scored_scene, frames, chunk_size=chunk_size, progress=progress,
                             min_segment_fraction=min_segment_fraction)
     metrics: dict[str, Any] = {

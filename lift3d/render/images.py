@@ -8,12 +8,20 @@ import numpy as np
 import torch
 from scipy import ndimage
 
+from lift3d.errors import InputError
 from lift3d.render.rays import RayGenerator
 
 #: Thing segments (category, instance) covering less than this fraction of a rendered frame take the labels of
 #: the pixels around them (:func:`merge_small_segments`): 16 pixels of a 128 × 128 frame. Chosen on the
 #: tuning runs (rooms 5 and 6, `fast`, with and without depth maps), see docs/benchmarks.md.
 MIN_SEGMENT_FRACTION = 0.001
+
+
+def check_min_segment_fraction(value: float) -> float:
+    """``value`` if it is a valid ``--min-segment-fraction`` (in [0, 1)), else a one-line :class:`InputError`."""
+    if not 0.0 <= value < 1.0:
+        raise InputError("--min-segment-fraction", f"must be in [0, 1), got {value}")
+    return value
 
 
 @dataclass
@@ -28,7 +36,8 @@ class FrameRender:
     confidence: np.ndarray | None  # [H, W] float32 probability of the chosen class
 
 
-def merge_small_segments(semantic: np.ndarray, instance: np.ndarray, min_pixels: float) -> tuple[np.ndarray, np.ndarray]:
+def merge_small_segments(semantic: np.ndarray, instance: np.ndarray,
+                         min_pixels: float) -> tuple[np.ndarray, np.ndarray]:
     """Relabel the thing segments of one frame that cover fewer than ``min_pixels`` pixels.
 
     A thing segment is every pixel of the frame with one (category, instance id), instance > 0. Where the

@@ -39,7 +39,7 @@ from lift3d.data.categories import Category
 from lift3d.data.images import write_label_map, write_panoptic_png, write_rgb
 from lift3d.errors import InputError
 from lift3d.model.run import load_run
-from lift3d.render.images import MIN_SEGMENT_FRACTION, FrameRender, render_frame
+from lift3d.render.images import MIN_SEGMENT_FRACTION, FrameRender, check_min_segment_fraction, render_frame
 from lift3d.render.rays import RayGenerator
 from lift3d.utils.atomic import write_json_atomic
 from lift3d.utils.colors import hash_colors
@@ -580,8 +580,7 @@ def render_to_folder(
     """
     if downscale < 1:
         raise InputError("--downscale", f"must be a positive integer (got {downscale})")
-    if not 0.0 <= min_segment_fraction < 1.0:
-        raise InputError("--min-segment-fraction", f"must be in [0, 1), got {min_segment_fraction}")
+    check_min_segment_fraction(min_segment_fraction)
     if chunk_size is not None and chunk_size < 1:
         raise InputError("--chunk-size", f"must be a positive number of rays (got {chunk_size})")
     names = resolve_outputs(outputs, previews)
