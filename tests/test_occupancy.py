@@ -52,9 +52,9 @@ def test_cells_with_density_are_occupied_and_decay_forgets():
 
 
 @pytest.mark.parametrize("contraction, subdivide, chunk", [("none", 1, 100), ("l2", 2, 700), ("linf", 3, 5000)])
-def test_the_sliced_measurement_matches_a_cell_by_cell_reference(contraction, subdivide, chunk):
+def test_the_chunked_measurement_matches_a_cell_by_cell_reference(contraction, subdivide, chunk):
     """Each cell keeps the largest density at its sub-cell points (jittered by the generator's offsets, drawn
-    x-slowest), whatever the chunking: the slab-wise loop against one point at a time."""
+    x-slowest), whatever the chunking: the update's chunked loop against one point at a time."""
     w = torch.tensor([0.7, -1.3, 0.4])
 
     def density(x):
