@@ -9,7 +9,8 @@ from lift3d.data.scene import load_scene
 from lift3d.data.stereo import SparsePoints, write_sparse_points
 from lift3d.model.config import ImageDepthConfig
 from lift3d.data.cameras import Cameras
-from lift3d.sfm.planes import ceiling_height, ceiling_points, fit_planes, floor_boundary_points, point_classes
+from lift3d.sfm.planes import (add_walls, ceiling_height, ceiling_points, fit_planes, floor_boundary_points, floor_line,
+                               floor_line_walls, point_classes)
 from lift3d.synth import make_scene
 from lift3d.train.image_depth import image_depth_targets
 
@@ -122,6 +123,95 @@ def test_walls_without_texture_come_from_where_the_labels_put_them_on_the_floor(
     strict, _, _ = floor_boundary_points(cams, range(4), labels, UP, 0.0, [FLOOR], [WALL], step=0.1,
                                          max_height=2.5, tolerance=0.04)
     assert len(strict) < len(xyz)
+
+
+def _corridor_views(shifts, size=96, f=80.0):
+    """Views from one end of a 12 × 4 m room (floor z = 0, walls x = ±6 and y = ±2), 1.5 m up, looking along +x
+    and 10° down, yawed so each sees a side wall near by and the far wall x = 6 five to nine metres away. Labels
+    (wall 1, floor 2) by ray casting; view ``k``'s wall is then drawn ``shifts[k]`` rows too fat (negative: too
+    thin) all along it, as a segmenter does to a whole image."""
+    rng = np.random.default_rng(5)
+    c2ws, labels = [], {}
+    for _ in shifts:
+        yaw, pitch = rng.uniform(-0.5, 0.5), np.radians(10)
+        fwd = np.array([np.cos(yaw) * np.cos(pitch), np.sin(yaw) * np.cos(pitch), -np.sin(pitch)])
+        right = np.cross(fwd, UP)
+        right /= np.linalg.norm(right)
+        c2w = np.eye(4)
+        c2w[:3, 0], c2w[:3, 1], c2w[:3, 2] = right, np.cross(right, fwd), -fwd
+        c2w[:3, 3] = [rng.uniform(-3, -1), rng.uniform(-1, 1), 1.5]
+        c2ws.append(c2w)
+    cams = Cameras(np.array(c2ws), fx=f, fy=f, cx=size / 2, cy=size / 2, width=size, height=size)
+    r, c = np.mgrid[0:size, 0:size]
+    for k, shift in enumerate(shifts):
+        o, d = cams.rays(k, c.ravel(), r.ravel())
+        best, cls = np.full(len(d), np.inf), np.zeros(len(d), np.int64)
+        for axis, value, label in [(0, 6.0, WALL), (0, -6.0, WALL), (1, 2.0, WALL), (1, -2.0, WALL), (2, 0.0, FLOOR)]:
+            with np.errstate(divide="ignore", invalid="ignore"):
+                t = (value - o[:, axis]) / d[:, axis]
+            hit = np.isfinite(t) & (t > 1e-6) & (t < best)
+            best[hit], cls[hit] = t[hit], label
+        sem = cls.reshape(size, size)
+        wall = sem == WALL
+        for _ in range(abs(shift)):  # grow the wall down into the floor, or the floor up into the wall
+            grow = np.zeros_like(wall)
+            if shift > 0:
+                grow[1:] = wall[:-1] & (sem[1:] == FLOOR)
+            else:
+                grow[:-1] = (sem[1:] == FLOOR) & wall[:-1]
+            sem = np.where(grow, WALL if shift > 0 else FLOOR, sem)
+            wall = sem == WALL
+        labels[k] = sem
+    return cams, labels
+
+
+def _side_walls_and_floor():
+    rng = np.random.default_rng(0)
+    floor = np.c_[rng.uniform(-5.8, 5.8, 400), rng.uniform(-1.8, 1.8, 400), np.zeros(400)]
+    sides = [np.c_[rng.uniform(-5.8, 5.8, 60), np.full(60, y), rng.uniform(0.2, 2.4, 60)] for y in (2.0, -2.0)]
+    pts = np.r_[floor, *sides]
+    cls = np.r_[np.full(400, FLOOR), np.full(120, WALL)]
+    return fit_planes(pts, cls, [WALL, FLOOR], threshold=0.05, min_points=8, margin=0.3, up=UP), pts
+
+
+def test_a_far_plain_wall_is_found_where_the_views_floor_lines_agree_in_pixels():
+    # The far wall x = 6 is 5-9 m from every camera: one label row there moves its foot by 0.2-0.7 m, so its feet
+    # do not make a plane in metres. Fitted in pixels, the views agree on it. Every view draws its wall 1 or 2
+    # rows too fat; measured on the side walls (whose planes are known), that is taken out again.
+    shifts = [2, 1, 2, 1, 2, 1, 2, 1]
+    cams, labels = _corridor_views(shifts)
+    known, _ = _side_walls_and_floor()
+    line = floor_line(cams, range(len(shifts)), labels, UP, 0.0, [FLOOR], [WALL])
+    walls = floor_line_walls(line, np.array([[1.0, 0, 0], [0, 1.0, 0]]), known, threshold=0.1)
+    assert len(walls) == 1
+    n, e, obs = walls[0]
+    assert abs(n[0]) == 1.0 and -e * n[0] == pytest.approx(6.0, abs=0.1) and len(np.unique(line.frame[obs])) >= 6
+    # each view's shift was measured against the side walls: without them the wall comes out far too near
+    blind = floor_line_walls(line, np.array([[1.0, 0, 0]]), fit_planes(np.zeros((0, 3)), np.zeros(0, int), [WALL],
+                                                                        threshold=0.1), threshold=0.1)
+    far = [-e * n[0] for n, e, _ in blind if abs(n[0]) == 1.0 and -e * n[0] > 4]
+    assert far and abs(far[0] - 6.0) > 0.3
+    calibrated = line.calibrated(known)
+    assert np.allclose(calibrated.shift[np.isin(calibrated.frame, [0, 2])], -2.0, atol=0.1)  # drawn 2 rows too fat
+
+
+def test_floor_line_walls_are_added_only_where_the_views_do_not_see_through_them():
+    cams, labels = _corridor_views([0] * 8)
+    known, pts = _side_walls_and_floor()
+    line = floor_line(cams, range(8), labels, UP, 0.0, [FLOOR], [WALL])
+    walls = floor_line_walls(line, np.array([[1.0, 0, 0]]), known, threshold=0.1)
+    sight = (np.repeat(cams.centers, len(pts), 0), np.tile(pts, (8, 1)))
+    planes, added = add_walls(known, cams, labels, line, walls, UP, 2.5, 0.1, sight)
+    assert added == 1 and len(planes) == len(known) + 1
+    t, k = planes.first_hit(np.array([[0.0, 0.0, 1.2]]), np.array([[1.0, 0.0, 0.0]]))
+    assert t[0] == pytest.approx(6.0, abs=0.1) and planes.holds(k, np.array([WALL]))[0]
+    # The same wall 2 m nearer, where the cameras see the floor beyond it: the sight lines cross it, not added.
+    n, e, obs = walls[0]
+    near = [(n, e - 2.0 * np.sign(e), obs)]  # x = 4
+    beyond = np.c_[np.random.default_rng(1).uniform(4.2, 5.8, 300), np.random.default_rng(2).uniform(-1.8, 1.8, 300),
+                   np.zeros(300)]
+    sight = (np.repeat(cams.centers, len(beyond), 0), np.tile(beyond, (8, 1)))
+    assert add_walls(known, cams, labels, line, near, UP, 2.5, 0.1, sight)[1] == 0
 
 
 CEILING, WINDOW = 3, 5
@@ -300,6 +390,11 @@ def test_the_ceiling_step_runs_with_or_without_the_floor_line(floor_room):
     off = image_depth_targets(scene, frames, ImageDepthConfig(source="planes", plane_stride=2,
                                                               plane_ceiling_boundary=False)).info["planes"]
     assert "ceiling_boundary_points" not in off
+    # the far-wall step is recorded, and its switch turns it off
+    assert "floor_line_walls" in off and "floor_line_observations" in off
+    no_far = image_depth_targets(scene, frames, ImageDepthConfig(source="planes", plane_stride=2,
+                                                                 plane_floor_line_walls=False)).info["planes"]
+    assert "floor_line_walls" not in no_far
 
 
 def test_label_boundary_finds_where_rows_of_one_class_sit_on_another():

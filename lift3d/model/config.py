@@ -114,6 +114,14 @@ class ImageDepthConfig:
     """``planes``: also fit walls to the points where the 2D labels put a wall on the floor (the ray through
     that boundary meets the floor plane at the wall's foot; the wall rises vertically from there), which needs no
     texture (:func:`lift3d.sfm.planes.floor_boundary_points`)."""
+    plane_floor_line_walls: bool = True
+    """``planes``: walls that no plane has yet, found where the wall-on-floor boundaries of many views agree
+    to within ``plane_line_pixels`` rows, in the directions of the walls found and at right angles to them (a
+    far plain wall: its feet, each known to half a metre across a room, are too scattered to fit in metres;
+    :func:`lift3d.sfm.planes.floor_line_walls`)."""
+    plane_line_pixels: float = 1.0
+    """``planes``: how many rows a view's wall-on-floor boundary may be off the wall's foot and still count
+    for it (``plane_floor_line_walls``)."""
     plane_ceiling_boundary: bool = True
     """``planes``: a stuff class no plane holds (a plain ceiling has next to no points) whose pixels the 2D
     labels put directly above walls gets a level plane where those boundary rays meet the walls' planes, when

@@ -33,7 +33,7 @@ Two walls of a box room, 40 points each; the ray from the middle looking along +
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 
 import numpy as np
 
@@ -392,23 +392,286 @@ def floor_boundary_points(cameras, frames, labels: dict[int, np.ndarray], normal
         foot, cls = o[ok] + t[ok, None] * d[ok], sem[r[ok], c[ok]].astype(np.int64)
         if not len(foot):
             continue
-        # the vertical line above each foot, while the view keeps labelling it that wall
-        line = foot[:, None, :] + heights[None, :, None] * normal  # [F, S, 3]
-        uv, z = cameras.project(i, line.reshape(-1, 3))
-        u = np.floor(uv[:, 0]).reshape(len(foot), -1)
-        v = np.floor(uv[:, 1]).reshape(len(foot), -1)
-        inside = (z.reshape(len(foot), -1) > 0) & (u >= 0) & (u < w) & (v >= 0) & (v < h)
-        same = np.zeros_like(inside)
-        same[inside] = sem[v[inside].astype(np.int64), u[inside].astype(np.int64)] == np.repeat(cls, len(heights))[
-            inside.ravel()]
-        same[:, 0] = True  # the foot itself
-        keep = np.cumprod(same, axis=1).astype(bool)
-        out_xyz.append(line[keep])
-        out_cls.append(np.repeat(cls, keep.sum(1)))
-        out_cam.append(np.broadcast_to(c2w[:3, 3], (int(keep.sum()), 3)))
+        xyz, xyz_cls = _vertical_lines(cameras, i, sem, foot, cls, heights, normal)
+        out_xyz.append(xyz)
+        out_cls.append(xyz_cls)
+        out_cam.append(np.broadcast_to(c2w[:3, 3], (len(xyz), 3)))
     if not out_xyz:
         return np.zeros((0, 3)), np.zeros(0, np.int64), np.zeros((0, 3))
     return np.concatenate(out_xyz), np.concatenate(out_cls), np.concatenate(out_cam)
+
+
+def _vertical_lines(cameras, i: int, sem: np.ndarray, foot: np.ndarray, cls: np.ndarray, heights: np.ndarray,
+                    normal: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Points up the vertical line above each wall foot (``[F, 3]``, class ``cls``) at ``heights``, while view
+    ``i``'s labels keep calling the line that class: ``(xyz [N, 3], classes [N])``."""
+    h, w = sem.shape
+    line = foot[:, None, :] + heights[None, :, None] * normal  # [F, S, 3]
+    uv, z = cameras.project(i, line.reshape(-1, 3))
+    u = np.floor(uv[:, 0]).reshape(len(foot), -1)
+    v = np.floor(uv[:, 1]).reshape(len(foot), -1)
+    inside = (z.reshape(len(foot), -1) > 0) & (u >= 0) & (u < w) & (v >= 0) & (v < h)
+    same = np.zeros_like(inside)
+    same[inside] = sem[v[inside].astype(np.int64), u[inside].astype(np.int64)] == np.repeat(cls, len(heights))[
+        inside.ravel()]
+    same[:, 0] = True  # the foot itself
+    keep = np.cumprod(same, axis=1).astype(bool)
+    return line[keep], np.repeat(cls, keep.sum(1))
+
+
+@dataclass
+class FloorLine:
+    """The labels' wall-on-floor boundaries of several views, as rays and the floor tracks they may slide along.
+
+    Each boundary pixel of a view is an observation: the ray through the boundary (``origin``, ``ray``), the
+    observed row (as the normalised image coordinate ``y``, with the camera's ``fy`` and world-to-camera
+    rotation ``rotation``), the foot where the ray meets the floor, and ``track``: the horizontal direction on
+    the floor within the plane of the pixel's image column. A vertical wall ``n · x + e = 0`` puts the foot
+    seen in that column at the point of the track on it; :meth:`residual` is how many pixels that point's row
+    is from the observed one. Fitting walls in pixels, not in metres, weighs a far view's boundary as what it
+    is: a row known to a pixel, which across the room is a foot known to half a metre, skewed outwards."""
+
+    frame: np.ndarray
+    origin: np.ndarray
+    rotation: np.ndarray
+    fy: np.ndarray
+    y: np.ndarray
+    foot: np.ndarray
+    track: np.ndarray
+    classes: np.ndarray
+    width: np.ndarray
+    shift: np.ndarray | None = None
+
+    def __len__(self) -> int:
+        return len(self.frame)
+
+    def subset(self, keep: np.ndarray) -> "FloorLine":
+        return FloorLine(*(None if getattr(self, f) is None else getattr(self, f)[keep]
+                           for f in self.__dataclass_fields__))
+
+    def feet(self, normal: np.ndarray, offset: np.ndarray) -> np.ndarray:
+        """``[..., N, 3]`` the point of each observation's track on the vertical plane(s) ``normal · x + offset =
+        0`` (``offset`` a scalar or ``[G, 1]``); NaN where the track runs along the plane."""
+        along = self.track @ normal
+        with np.errstate(divide="ignore", invalid="ignore"):
+            lam = -(self.foot @ normal + offset) / np.where(np.abs(along) > 0.2, along, np.nan)
+        return self.foot + lam[..., None] * self.track
+
+    def residual(self, normal: np.ndarray, offset) -> np.ndarray:
+        """``[..., N]`` pixels between the observed boundary row and the row of the foot on the plane(s)
+        ``normal · x + offset = 0``; NaN where the foot is behind the camera or undefined."""
+        x = self.feet(normal, offset)
+        pc = np.einsum("nij,...nj->...ni", self.rotation, x - self.origin)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            res = self.fy * (pc[..., 1] / pc[..., 2] - self.y)
+        if self.shift is not None:
+            res = res - self.shift
+        return np.where(pc[..., 2] > 0, res, np.nan)
+
+    def calibrated(self, known: "StuffPlanes", window: float = 3.0, min_count: int = 5) -> "FloorLine":
+        """These observations with each view's boundary shift (``shift``) measured against the walls of
+        ``known``: a segmenter draws a frame's wall a pixel or two too fat or too thin all along it, and where
+        a known wall's foot is within ``window`` rows of the boundary, the median of those residuals (over at
+        least ``min_count`` of them) is that view's shift. Views without a known wall keep 0."""
+        best = np.full(len(self), np.inf)
+        for k in range(len(known)):
+            holds = np.isin(self.classes, list(known.classes[k]))
+            if holds.any():
+                res = replace(self, shift=None).subset(holds).residual(known.normal[k], known.offset[k])
+                idx = np.flatnonzero(holds)
+                closer = np.abs(res) < np.abs(best[idx])
+                best[idx[closer]] = res[closer]
+        shift = np.zeros(len(self))
+        for f in np.unique(self.frame):
+            m = (self.frame == f) & (np.abs(best) <= window)
+            if m.sum() >= min_count:
+                shift[self.frame == f] = float(np.median(best[m]))
+        return replace(self, shift=shift)
+
+
+def floor_line(cameras, frames, labels: dict[int, np.ndarray], normal: np.ndarray, offset: float, floor_classes,
+               wall_classes, min_rows: int = 2) -> FloorLine:
+    """Every wall-on-floor boundary pixel of ``frames`` as a :class:`FloorLine` (the floor ``normal · x + offset
+    = 0``, ``normal`` up; see :func:`floor_boundary_points`)."""
+    normal = np.asarray(normal, np.float64)
+    floor_ids, wall_ids = [int(c) for c in floor_classes], [int(c) for c in wall_classes]
+    parts = []
+    for i in frames:
+        i = int(i)
+        sem = labels[i]
+        c2w = cameras.c2w_opencv[i]
+        if abs(c2w[:3, 0] @ normal) > 0.3:  # rolled: an image column is far from vertical
+            continue
+        r, c = label_boundary(sem, wall_ids, floor_ids, min_rows, same="upper")
+        if not len(r):
+            continue
+        o, d = cameras.rays(i, c.astype(np.float64), r + 0.5)
+        t, denom = ray_plane_distance(o, d, normal, offset)
+        ok = np.isfinite(t) & (t > 0) & (denom < 0)
+        if not ok.any():
+            continue
+        r, c, o, d, t = r[ok], c[ok], o[ok], d[ok], t[ok]
+        rot = c2w[:3, :3].T
+        cam = d @ rot.T
+        xn = cam[:, 0] / cam[:, 2]
+        # the plane of the pixel's column holds the rays (xn, y, 1): its normal is (1, 0, -xn) in the camera
+        column = np.c_[np.ones_like(xn), np.zeros_like(xn), -xn] @ rot
+        track = np.cross(column, normal)
+        track /= np.linalg.norm(track, axis=1, keepdims=True)
+        parts.append((np.full(len(r), i, np.int64), o, np.broadcast_to(rot, (len(r), 3, 3)),
+                      np.full(len(r), float(cameras.fy[i])), cam[:, 1] / cam[:, 2], o + t[:, None] * d, track,
+                      sem[r, c].astype(np.int64), np.full(len(r), sem.shape[1], np.int64)))
+    if not parts:
+        z3 = np.zeros((0, 3))
+        return FloorLine(np.zeros(0, np.int64), z3, np.zeros((0, 3, 3)), np.zeros(0), np.zeros(0), z3, z3,
+                         np.zeros(0, np.int64), np.zeros(0, np.int64))
+    return FloorLine(*(np.concatenate(a) for a in zip(*parts)))
+
+
+def floor_line_walls(line: FloorLine, directions: np.ndarray, known: "StuffPlanes", threshold: float,
+                     pixel_tolerance: float = 1.0, min_views: int = 3, view_share: float = 0.05,
+                     max_walls: int = 8) -> list[tuple[np.ndarray, float, np.ndarray]]:
+    """Vertical walls that many views' wall-on-floor boundaries agree on, found in pixels.
+
+    For each direction (a unit horizontal normal: a room's walls are few directions, usually two at right
+    angles), the wall's offset is searched on a grid of ``threshold / 4``. A view supports an offset when the
+    wall's foot lands within ``pixel_tolerance`` rows of its boundary in at least ``view_share`` of its image
+    columns: any one foot admits a wall through it in any direction, but only a wall that is there runs along
+    the boundary for a stretch. The offset with most supporting observations, in at least ``min_views``
+    views, wins and is refined to where the supporting views' median residuals balance (the median of each
+    view's median: a view's boundary tends to be off by the same pixel along its length). Its observations
+    leave and the next is searched, up to ``max_walls`` per direction.
+
+    Observations that a plane of ``known`` holding their class explains already (within the tolerance) take
+    no part. A wall within ``3 × threshold`` of a parallel known or already found one is the same wall seen
+    through boundaries a pixel or two off: it is not returned, and its observations leave.
+
+    Parameters
+    ----------
+    line : FloorLine
+        The boundaries (:func:`floor_line`).
+    directions : np.ndarray
+        ``[D, 3]`` unit horizontal wall normals to try.
+    known : StuffPlanes
+        The planes found so far.
+    threshold : float
+        The plane threshold (world units); the offset grid is a quarter of it.
+
+    Returns
+    -------
+    list of (normal, offset, observations)
+        Each wall ``normal · x + offset = 0`` and the indices into ``line`` of its observations.
+
+    Examples
+    --------
+    Three cameras 1.5 m above the floor look at a plain wall y = 6 from 3, 4 and 6 m; each labels the wall
+    above the floor row where its foot is:
+
+    >>> from lift3d.data.cameras import Cameras
+    >>> c2w = np.array([np.array([[1.0, 0, 0, x], [0, 0, -1, y], [0, 1, 0, 1.5], [0, 0, 0, 1]])
+    ...                 for x, y in [(-1, 3), (0, 2), (1, 0)]])
+    >>> cams = Cameras(c2w, fx=64.0, fy=64.0, cx=64.0, cy=64.0, width=128, height=128)
+    >>> rows = np.arange(128)[:, None].repeat(128, 1)
+    >>> labels = {i: np.where(rows < round(64 + 64 * 1.5 / (6 - c2w[i, 1, 3])), 1, 2) for i in range(3)}
+    >>> line = floor_line(cams, [0, 1, 2], labels, np.array([0, 0, 1.0]), 0.0, [2], [1])
+    >>> walls = floor_line_walls(line, np.array([[0, 1.0, 0]]), fit_planes(np.zeros((0, 3)), np.zeros(0, int), [1],
+    ...                          threshold=0.1), threshold=0.1)
+    >>> [(round(-e, 1), len(obs)) for _, e, obs in walls]
+    [(6.0, 384)]
+    """
+    if not len(line):
+        return []
+    line = line.calibrated(known, window=3 * pixel_tolerance)
+    free = np.ones(len(line), bool)
+    for k in range(len(known)):
+        holds = np.isin(line.classes, list(known.classes[k]))
+        if holds.any():
+            res = line.subset(holds).residual(known.normal[k], known.offset[k])
+            free[np.flatnonzero(holds)[np.abs(res) <= pixel_tolerance]] = False
+    walls: list[tuple[np.ndarray, float, np.ndarray]] = []
+    step = threshold / 4
+    for n in np.asarray(directions, np.float64).reshape(-1, 3):
+        parallel = np.abs(known.normal @ n) > np.cos(np.radians(5)) if len(known) else np.zeros(0, bool)
+        taken = list(known.offset[parallel] * np.sign(known.normal[parallel] @ n))
+        for _ in range(4 * max_walls):  # duplicates do not count towards max_walls
+            if sum(1 for w in walls if w[0] is n) >= max_walls:
+                break
+            idx = np.flatnonzero(free)
+            if not len(idx):
+                break
+            obs = line.subset(idx)
+            views, view_of = np.unique(obs.frame, return_inverse=True)
+            need = view_share * np.bincount(view_of, weights=obs.width)[:len(views)] / np.bincount(view_of)
+            onehot = np.zeros((len(obs), len(views)))
+            onehot[np.arange(len(obs)), view_of] = 1.0
+            through = -(obs.foot @ n)  # the offset of the wall through each observed foot
+            ok = np.abs(obs.track @ n) > 0.2
+            if not ok.any():
+                break
+            lo, hi = np.percentile(through[ok], [1, 99])
+            grid = np.arange(lo, hi + step, step)
+            score = np.zeros(len(grid))
+            for s in range(0, len(grid), 64):
+                near = np.abs(obs.residual(n, grid[s:s + 64, None])) <= pixel_tolerance  # [g, N]
+                per_view = near.astype(np.float64) @ onehot  # [g, V]
+                good = per_view >= np.maximum(need, 1.0)
+                score[s:s + 64] = np.where(good.sum(1) >= min_views, (per_view * good).sum(1), 0.0)
+            g = int(np.argmax(score))
+            if score[g] <= 0:
+                break
+            near = np.abs(obs.residual(n, grid[g])) <= pixel_tolerance
+            per_view = near.astype(np.float64) @ onehot
+            inl = near & (per_view >= np.maximum(need, 1.0))[view_of]
+            sub = obs.subset(inl)
+            fine = grid[g] + np.arange(-80, 81) * (step / 2)  # the inliers span a pixel: metres across a room
+            res = sub.residual(n, fine[:, None])  # [F, M]
+            frames = np.unique(sub.frame)
+            balance = [abs(np.median([np.nanmedian(r[sub.frame == f]) for f in frames])) for r in res]
+            e = float(fine[int(np.nanargmin(balance))])
+            free[idx[near]] = False
+            if any(abs(e - t) < 3 * threshold for t in taken):
+                continue
+            taken.append(e)
+            walls.append((n, e, idx[inl]))
+    return walls
+
+
+def add_walls(planes: StuffPlanes, cameras, labels: dict[int, np.ndarray], line: FloorLine, walls, up: np.ndarray,
+              max_height: float, threshold: float, sightlines: tuple[np.ndarray, np.ndarray],
+              max_crossing_share: float = 0.2, min_class_share: float = 0.25) -> tuple[StuffPlanes, int]:
+    """``planes`` with the walls of :func:`floor_line_walls` that the views do not contradict, and how many.
+
+    Each wall's points are its observations' feet on it and the vertical lines above them while each view keeps
+    labelling the line that class (spaced ``2 × threshold`` up to ``max_height``, as
+    :func:`floor_boundary_points`). A wall is kept when its points spread over an area and sight lines
+    (``sightlines``, and the views to these points) cross it inside their hull no more than
+    ``max_crossing_share`` as often as they end on it — the test of :func:`fit_planes`. It holds the classes
+    of at least ``min_class_share`` of its points. The walls are added as they are: fitted again with every
+    other point, their points shift RANSAC's draws (an L-shaped tuning room lost two walls that way).
+    """
+    added = 0
+    for normal, offset, obs in walls:
+        sub = line.subset(obs)
+        feet = sub.feet(normal, offset)
+        xyz, cls, cam = [], [], []
+        for i in np.unique(sub.frame):
+            m = sub.frame == i
+            p, c = _vertical_lines(cameras, int(i), labels[int(i)], feet[m], sub.classes[m],
+                                   np.arange(0.0, max_height + 1e-9, 2 * threshold), up)
+            xyz.append(p), cls.append(c), cam.append(np.broadcast_to(cameras.centers[int(i)], (len(p), 3)))
+        xyz, cls = np.concatenate(xyz), np.concatenate(cls)
+        extent = _extent(xyz, normal, threshold)
+        if extent is None:
+            continue
+        crossings, support = _crossings((np.r_[sightlines[0], *cam], np.r_[sightlines[1], xyz]), normal, offset,
+                                        extent, threshold)
+        if crossings > max_crossing_share * support:
+            continue
+        ids, counts = np.unique(cls, return_counts=True)
+        held = np.isin(cls, ids[counts >= min_class_share * len(cls)])
+        planes = planes.with_plane(normal, offset, xyz[held], cls[held], threshold)
+        added += 1
+    return planes, added
 
 
 def ceiling_height(cameras, frames, labels: dict[int, np.ndarray], planes: "StuffPlanes", normal: np.ndarray,

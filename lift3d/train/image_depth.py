@@ -288,8 +288,17 @@ def _plane_rows(scene: Scene, sparse: SparsePoints, dense: DenseDepth, frames: n
             info["floor_boundary_points"] = int(len(foot))
             if len(foot):
                 # thinning the thinned points again keeps them (one per cell and class already, first in order)
-                planes = fit(*thin(np.r_[thinned, foot], np.r_[thinned_cls, foot_cls]), np.r_[cams, foot_cam],
-                             np.r_[seen_xyz, foot])
+                thinned, thinned_cls = thin(np.r_[thinned, foot], np.r_[thinned_cls, foot_cls])
+                cams, seen_xyz = np.r_[cams, foot_cam], np.r_[seen_xyz, foot]
+                planes = fit(thinned, thinned_cls, cams, seen_xyz)
+    if cfg.plane_floor_line_walls and len(planes):
+        # far plain walls: their near feet were too few, but many views' boundaries agree in pixels
+        floor = _floor_plane(planes, up)
+        if floor is not None:
+            height = float(np.percentile(thinned @ floor[1] + floor[2], 99)) if len(thinned) else 0.0
+            planes, found = _floor_line_walls(scene, frames, labels, planes, floor, stuff, cfg, diag, height,
+                                              (cams, seen_xyz))
+            info.update(found)
     if cfg.plane_ceiling_boundary and len(planes):
         # walls from stereo alone are enough to place a ceiling: this does not need the floor line
         planes, found = _ceiling_plane(scene, frames, labels, planes, up, stuff, cfg, diag, min_points)
@@ -340,6 +349,54 @@ def _floor_plane(planes, up: np.ndarray) -> tuple[int, np.ndarray, float] | None
     f = int(np.flatnonzero(level)[np.argmax(planes.inliers[level])])
     n, d = planes.normal[f], float(planes.offset[f])
     return (f, -n, -d) if n @ up < 0 else (f, n, d)
+
+
+def wall_classes(planes, floor: int, up: np.ndarray, stuff) -> list[int]:
+    """The stuff classes that may stand on the floor as a wall: held by a vertical plane (within 10°) and not by
+    the floor plane ``floor``. A segmenter that repeats its mistakes paints ceiling or window above floor here
+    and there; the boundary of a class no wall plane holds is no wall's foot (one test room got a vertical
+    "ceiling" plane outside the room from it, which then kept its real ceiling from getting a plane).
+
+    Examples
+    --------
+    >>> from lift3d.sfm.planes import fit_planes
+    >>> floor = np.c_[np.random.default_rng(0).uniform(-2, 2, (200, 2)), np.zeros(200)]
+    >>> wall = np.c_[np.full(60, 2.0), np.random.default_rng(1).uniform([-2, 0], [2, 2.5], (60, 2))]
+    >>> planes = fit_planes(np.r_[floor, wall], np.r_[np.full(200, 2), np.full(60, 1)], [1, 2, 3], threshold=0.05,
+    ...                     min_points=8, up=np.array([0, 0, 1.0]))
+    >>> f = int(np.argmax(np.abs(planes.normal[:, 2])))
+    >>> wall_classes(planes, f, np.array([0, 0, 1.0]), [1, 2, 3])   # the ceiling (3) stands on nothing
+    [1]
+    """
+    vertical = np.abs(planes.normal @ up) < np.sin(np.radians(10))
+    held = set().union(*[c for c, v in zip(planes.classes, vertical) if v]) if vertical.any() else set()
+    return [int(c) for c in stuff if c not in planes.classes[floor] and c in held]
+
+
+def _floor_line_walls(scene: Scene, frames, labels, planes, floor, stuff, cfg: ImageDepthConfig, diag: float,
+                      max_height: float, sightlines: tuple[np.ndarray, np.ndarray]):
+    """The planes and the walls that the views' wall-on-floor boundaries agree on in pixels and no plane has yet
+    (:func:`lift3d.sfm.planes.floor_line_walls`), in the walls' directions (the mean of the vertical planes'
+    normals modulo a right angle, weighted by their points) and at right angles to them, of the classes
+    :func:`wall_classes` allows, added by :func:`lift3d.sfm.planes.add_walls`."""
+    # here, not at module level: keeps `import lift3d.train` cheap (lift3d.sfm loads OpenCV)
+    from lift3d.sfm.planes import add_walls, floor_line, floor_line_walls
+
+    f, n, d = floor
+    vertical = np.flatnonzero(np.abs(planes.normal @ n) < np.sin(np.radians(10)))
+    if not len(vertical):
+        return planes, {"floor_line_walls": 0}
+    basis = np.linalg.svd(n[None])[2][1:]  # two horizontal axes
+    flat = planes.normal[vertical] @ basis.T
+    angle = np.arctan2(flat[:, 1], flat[:, 0])
+    mean = np.angle(np.sum(planes.inliers[vertical] * np.exp(4j * angle))) / 4
+    main = np.cos(mean) * basis[0] + np.sin(mean) * basis[1]
+    line = floor_line(scene.cameras, frames, labels, n, d, planes.classes[f], wall_classes(planes, f, n, stuff))
+    threshold = cfg.plane_threshold * diag
+    found = floor_line_walls(line, np.stack([main, np.cross(n, main)]), planes, threshold,
+                             pixel_tolerance=cfg.plane_line_pixels)
+    planes, kept = add_walls(planes, scene.cameras, labels, line, found, n, max_height, threshold, sightlines)
+    return planes, {"floor_line_walls": kept, "floor_line_observations": int(len(line))}
 
 
 def _ceiling_plane(scene: Scene, frames, labels, planes, up, stuff, cfg: ImageDepthConfig, diag: float,

@@ -543,7 +543,9 @@ def image_depth_lines(info: dict | None) -> list[str]:
         if isinstance(planes, dict) and planes.get("planes"):
             text += (f", {planes['planes']} stuff planes giving {planes.get('targets', 0)} targets"
                      + (f" ({planes['floor_boundary_points']} wall points from the labels' floor line)"
-                        if planes.get("floor_boundary_points") else ""))
+                        if planes.get("floor_boundary_points") else "")
+                     + (f" ({planes['floor_line_walls']} far walls where the views' floor lines agree)"
+                        if planes.get("floor_line_walls") else ""))
         text += f"; {info.get('seconds', 0):.0f} s)"
     return [text] + [f"  warning        {w}" for w in info.get("warnings", [])]
 
