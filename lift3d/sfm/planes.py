@@ -33,6 +33,7 @@ Two walls of a box room, 40 points each; the ray from the middle looking along +
 
 from __future__ import annotations
 
+import warnings
 from dataclasses import dataclass, field, replace
 
 import numpy as np
@@ -626,7 +627,9 @@ def floor_line_walls(line: FloorLine, directions: np.ndarray, known: "StuffPlane
             fine = grid[g] + np.arange(-80, 81) * (step / 2)  # the inliers span a pixel: metres across a room
             res = sub.residual(n, fine[:, None])  # [F, M]
             frames = np.unique(sub.frame)
-            balance = [abs(np.median([np.nanmedian(r[sub.frame == f]) for f in frames])) for r in res]
+            with warnings.catch_warnings():  # a view whose feet all fall behind it at some offset: NaN, skipped
+                warnings.simplefilter("ignore", RuntimeWarning)
+                balance = [abs(np.median([np.nanmedian(r[sub.frame == f]) for f in frames])) for r in res]
             e = float(fine[int(np.nanargmin(balance))])
             free[idx[near]] = False
             if any(abs(e - t) < 3 * threshold for t in taken):
