@@ -91,6 +91,10 @@ class StuffPlanes:
                            np.r_[self.inliers, len(points)].astype(np.int64), np.r_[self.origin.reshape(-1, 3), origin[None]],
                            np.r_[self.basis.reshape(-1, 2, 3), basis[None]], [*self.hull, hull], self.margin)
 
+    def vertical(self, up: np.ndarray, max_tilt_deg: float = 10.0) -> np.ndarray:
+        """``[P] bool``: the plane is within ``max_tilt_deg`` of vertical (a wall) for the direction ``up``."""
+        return np.abs(self.normal.reshape(-1, 3) @ up) < np.sin(np.radians(max_tilt_deg))
+
     def holds(self, plane: np.ndarray, class_id: np.ndarray) -> np.ndarray:
         """``[R] bool``: plane ``plane[r]`` (``-1`` = none) holds class ``class_id[r]``."""
         out = np.zeros(len(plane), bool)
@@ -377,29 +381,41 @@ def floor_boundary_points(cameras, frames, labels: dict[int, np.ndarray], normal
     for i in frames:
         i = int(i)
         sem = labels[i]
-        h, w = sem.shape
-        c2w = cameras.c2w_opencv[i]
-        if abs(c2w[:3, 0] @ normal) > 0.3:  # rolled: an image column is far from vertical
+        hits = _boundary_floor_hits(cameras, i, sem, normal, offset, wall_ids, floor_ids, min_rows)
+        if hits is None:
             continue
-        r, c = label_boundary(sem, wall_ids, floor_ids, min_rows, same="upper")  # r: the last wall row
-        if not len(r):
-            continue
-        o, d = cameras.rays(i, c.astype(np.float64), r + 0.5)
-        t, denom = ray_plane_distance(o, d, normal, offset)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            # one pixel turns the ray by ~1/f; along the floor the foot moves t/f / sin(grazing angle)
-            slip = t / (min(cameras.fx[i], cameras.fy[i]) * np.abs(denom))
-        ok = np.isfinite(t) & (t > 0) & (denom < 0) & (slip < tolerance)
+        r, c, o, d, t, denom = hits
+        # one pixel turns the ray by ~1/f; along the floor the foot moves t/f / sin(grazing angle)
+        ok = t / (min(cameras.fx[i], cameras.fy[i]) * np.abs(denom)) < tolerance
         foot, cls = o[ok] + t[ok, None] * d[ok], sem[r[ok], c[ok]].astype(np.int64)
         if not len(foot):
             continue
         xyz, xyz_cls = _vertical_lines(cameras, i, sem, foot, cls, heights, normal)
         out_xyz.append(xyz)
         out_cls.append(xyz_cls)
-        out_cam.append(np.broadcast_to(c2w[:3, 3], (len(xyz), 3)))
+        out_cam.append(np.broadcast_to(cameras.c2w_opencv[i][:3, 3], (len(xyz), 3)))
     if not out_xyz:
         return np.zeros((0, 3)), np.zeros(0, np.int64), np.zeros((0, 3))
     return np.concatenate(out_xyz), np.concatenate(out_cls), np.concatenate(out_cam)
+
+
+def _boundary_floor_hits(cameras, i: int, sem: np.ndarray, normal: np.ndarray, offset: float, wall_ids, floor_ids,
+                         min_rows: int):
+    """Where the rays through view ``i``'s wall-on-floor label boundaries meet the floor plane ahead, from above:
+    ``(rows, cols, origins, directions, t, cos)`` of those that do (``cos`` the ray's cosine with ``normal``,
+    negative), or None for a rolled view (an image column far from vertical) or one without such a boundary."""
+    if abs(cameras.c2w_opencv[i][:3, 0] @ normal) > 0.3:
+        return None
+    r, c = label_boundary(sem, wall_ids, floor_ids, min_rows, same="upper")  # r: the last wall row
+    if not len(r):
+        return None
+    o, d = cameras.rays(i, c.astype(np.float64), r + 0.5)
+    t, denom = ray_plane_distance(o, d, normal, offset)
+    with np.errstate(invalid="ignore"):
+        ok = np.isfinite(t) & (t > 0) & (denom < 0)
+    if not ok.any():
+        return None
+    return r[ok], c[ok], o[ok], d[ok], t[ok], denom[ok]
 
 
 def _vertical_lines(cameras, i: int, sem: np.ndarray, foot: np.ndarray, cls: np.ndarray, heights: np.ndarray,
@@ -500,19 +516,11 @@ def floor_line(cameras, frames, labels: dict[int, np.ndarray], normal: np.ndarra
     for i in frames:
         i = int(i)
         sem = labels[i]
-        c2w = cameras.c2w_opencv[i]
-        if abs(c2w[:3, 0] @ normal) > 0.3:  # rolled: an image column is far from vertical
+        hits = _boundary_floor_hits(cameras, i, sem, normal, offset, wall_ids, floor_ids, min_rows)
+        if hits is None:
             continue
-        r, c = label_boundary(sem, wall_ids, floor_ids, min_rows, same="upper")
-        if not len(r):
-            continue
-        o, d = cameras.rays(i, c.astype(np.float64), r + 0.5)
-        t, denom = ray_plane_distance(o, d, normal, offset)
-        ok = np.isfinite(t) & (t > 0) & (denom < 0)
-        if not ok.any():
-            continue
-        r, c, o, d, t = r[ok], c[ok], o[ok], d[ok], t[ok]
-        rot = c2w[:3, :3].T
+        r, c, o, d, t, _ = hits
+        rot = cameras.c2w_opencv[i][:3, :3].T
         cam = d @ rot.T
         xn = cam[:, 0] / cam[:, 2]
         # the plane of the pixel's column holds the rays (xn, y, 1): its normal is (1, 0, -xn) in the camera
@@ -720,7 +728,7 @@ def ceiling_height(cameras, frames, labels: dict[int, np.ndarray], planes: "Stuf
     (2.5, 64)
     """
     normal = np.asarray(normal, np.float64)
-    vertical = np.abs(planes.normal @ normal) < np.sin(np.radians(10))
+    vertical = planes.vertical(normal)
     walls = sorted(set().union(*[c for c, v in zip(planes.classes, vertical) if v])) if vertical.any() else []
     ceiling = [int(c) for c in ceiling_classes]
     if not walls or not ceiling:

@@ -368,7 +368,7 @@ def wall_classes(planes, floor: int, up: np.ndarray, stuff) -> list[int]:
     >>> wall_classes(planes, f, np.array([0, 0, 1.0]), [1, 2, 3])   # the ceiling (3) stands on nothing
     [1]
     """
-    vertical = np.abs(planes.normal @ up) < np.sin(np.radians(10))
+    vertical = planes.vertical(up)
     held = set().union(*[c for c, v in zip(planes.classes, vertical) if v]) if vertical.any() else set()
     return [int(c) for c in stuff if c not in planes.classes[floor] and c in held]
 
@@ -383,7 +383,7 @@ def _floor_line_walls(scene: Scene, frames, labels, planes, floor, stuff, cfg: I
     from lift3d.sfm.planes import add_walls, floor_line, floor_line_walls
 
     f, n, d = floor
-    vertical = np.flatnonzero(np.abs(planes.normal @ n) < np.sin(np.radians(10)))
+    vertical = np.flatnonzero(planes.vertical(n))
     if not len(vertical):
         return planes, {"floor_line_walls": 0}
     basis = np.linalg.svd(n[None])[2][1:]  # two horizontal axes
