@@ -9,8 +9,8 @@ from lift3d.data.scene import load_scene
 from lift3d.data.stereo import SparsePoints, write_sparse_points
 from lift3d.model.config import ImageDepthConfig
 from lift3d.data.cameras import Cameras
-from lift3d.sfm.planes import (add_walls, ceiling_height, ceiling_points, fit_planes, floor_boundary_points, floor_line,
-                               floor_line_walls, point_classes)
+from lift3d.sfm.planes import (add_walls, ceiling_height, ceiling_points, correct_walls, fit_planes, floor_boundary_points,
+                               floor_line, floor_line_walls, point_classes)
 from lift3d.synth import make_scene
 from lift3d.train.image_depth import image_depth_targets
 
@@ -125,9 +125,10 @@ def test_walls_without_texture_come_from_where_the_labels_put_them_on_the_floor(
     assert len(strict) < len(xyz)
 
 
-def _corridor_views(shifts, size=96, f=80.0):
+def _corridor_views(shifts, size=96, f=80.0, start=(-3.0, -1.0)):
     """Views from one end of a 12 × 4 m room (floor z = 0, walls x = ±6 and y = ±2), 1.5 m up, looking along +x
-    and 10° down, yawed so each sees a side wall near by and the far wall x = 6 five to nine metres away. Labels
+    and 10° down, yawed so each sees a side wall near by and the far wall x = 6 five to nine metres away (from x
+    in ``start``). Labels
     (wall 1, floor 2) by ray casting; view ``k``'s wall is then drawn ``shifts[k]`` rows too fat (negative: too
     thin) all along it, as a segmenter does to a whole image."""
     rng = np.random.default_rng(5)
@@ -139,7 +140,7 @@ def _corridor_views(shifts, size=96, f=80.0):
         right /= np.linalg.norm(right)
         c2w = np.eye(4)
         c2w[:3, 0], c2w[:3, 1], c2w[:3, 2] = right, np.cross(right, fwd), -fwd
-        c2w[:3, 3] = [rng.uniform(-3, -1), rng.uniform(-1, 1), 1.5]
+        c2w[:3, 3] = [rng.uniform(*start), rng.uniform(-1, 1), 1.5]
         c2ws.append(c2w)
     cams = Cameras(np.array(c2ws), fx=f, fy=f, cx=size / 2, cy=size / 2, width=size, height=size)
     r, c = np.mgrid[0:size, 0:size]
@@ -212,6 +213,50 @@ def test_floor_line_walls_are_added_only_where_the_views_do_not_see_through_them
                    np.zeros(300)]
     sight = (np.repeat(cams.centers, len(beyond), 0), np.tile(beyond, (8, 1)))
     assert add_walls(known, cams, labels, line, near, UP, 2.5, 0.1, sight)[1] == 0
+
+
+
+def _with_far_wall(known, x: float, tilt_deg: float = 0.0):
+    """``known`` and a far wall through x at y = 0, turned ``tilt_deg`` about the vertical, over y ±1.8, z 0.2–2.4."""
+    rng = np.random.default_rng(3)
+    a = np.radians(tilt_deg)
+    n = np.array([np.cos(a), np.sin(a), 0.0])
+    y, z = rng.uniform(-1.8, 1.8, 80), rng.uniform(0.2, 2.4, 80)
+    pts = np.c_[x - np.tan(a) * y, y, z]
+    return known.with_plane(n, -x, pts, np.full(80, WALL), threshold=0.1)
+
+
+@pytest.mark.parametrize("x, tilt", [(5.8, 0.0), (6.25, 0.0), (5.8, 3.0)])
+def test_a_stereo_wall_the_floor_lines_contradict_moves_to_where_they_put_it(x, tilt):
+    # Stereo placed the far wall x = 6 20 cm inside the room, 25 cm outside, or 20 cm inside and turned 3°; each view,
+    # 3-5 m from it, draws its wall up to 2 rows fat or thin, measured on the side walls. The floor lines move it back.
+    cams, labels = _corridor_views([2, 1, -1, 0, 2, -2, 1, 0], start=(1.0, 3.0))
+    known, _ = _side_walls_and_floor()
+    planes = _with_far_wall(known, x, tilt)
+    line = floor_line(cams, range(8), labels, UP, 0.0, [FLOOR], [WALL])
+    moved, count = correct_walls(line, np.array([[1.0, 0, 0], [0, 1.0, 0]]), planes, threshold=0.1)
+    assert count == 1
+    k = len(planes) - 1
+    assert np.allclose(moved.normal[k], [1.0, 0, 0], atol=1e-9) and -moved.offset[k] == pytest.approx(6.0, abs=0.05)
+    assert np.array_equal(moved.normal[:k], planes.normal[:k]) and np.array_equal(moved.offset[:k], planes.offset[:k])
+    # it keeps its extent: a ray along the room meets it at 6 m, one beyond its side (y = 2.5) does not
+    t, hit = moved.first_hit(np.array([[0.0, 0.0, 1.2], [0.0, 2.5, 1.2]]), np.array([[1.0, 0, 0], [1.0, 0, 0]]))
+    assert hit[0] == k and t[0] == pytest.approx(6.0, abs=0.05) and hit[1] != k
+
+
+def test_a_wall_where_the_floor_lines_put_it_stays_and_one_no_other_wall_calibrates_stays_too():
+    cams, labels = _corridor_views([2, 1, -1, 0, 2, -2, 1, 0], start=(1.0, 3.0))
+    known, _ = _side_walls_and_floor()
+    line = floor_line(cams, range(8), labels, UP, 0.0, [FLOOR], [WALL])
+    dirs = np.array([[1.0, 0, 0], [0, 1.0, 0]])
+    right = _with_far_wall(known, 6.0)
+    assert correct_walls(line, dirs, right, threshold=0.1)[1] == 0
+    # Without the side walls no view's label shift can be measured: a boundary drawn 2 rows fat cannot be told
+    # from a wall 20 cm nearer, so the wall is left where stereo put it.
+    floor_only = known.subset(~known.vertical(UP))
+    alone = _with_far_wall(floor_only, 5.8)
+    fixed, count = correct_walls(line, dirs, alone, threshold=0.1)
+    assert count == 0 and np.array_equal(fixed.offset, alone.offset)
 
 
 CEILING, WINDOW = 3, 5

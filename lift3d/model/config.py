@@ -119,6 +119,10 @@ class ImageDepthConfig:
     to within ``plane_line_pixels`` rows, in the directions of the walls found and at right angles to them (a
     far plain wall: its feet, each known to half a metre across a room, are too scattered to fit in metres;
     :func:`lift3d.sfm.planes.floor_line_walls`)."""
+    plane_floor_line_correct: bool = True
+    """``planes``: move a wall found by stereo to where the views' wall-on-floor boundaries put it when they
+    clearly disagree (a plain wall fitted to a few points can sit 10–20 cm inside a long room, or turn a few
+    degrees; :func:`lift3d.sfm.planes.correct_walls`). Needs ``plane_floor_line_walls``."""
     plane_line_pixels: float = 1.0
     """``planes``: how many rows a view's wall-on-floor boundary may be off the wall's foot and still count
     for it (``plane_floor_line_walls``)."""

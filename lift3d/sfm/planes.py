@@ -91,6 +91,28 @@ class StuffPlanes:
                            np.r_[self.inliers, len(points)].astype(np.int64), np.r_[self.origin.reshape(-1, 3), origin[None]],
                            np.r_[self.basis.reshape(-1, 2, 3), basis[None]], [*self.hull, hull], self.margin)
 
+    def subset(self, keep: np.ndarray) -> "StuffPlanes":
+        """The planes where ``keep`` (``[P] bool``)."""
+        idx = np.flatnonzero(keep)
+        return StuffPlanes(self.normal[idx], self.offset[idx], [self.classes[i] for i in idx], self.rms[idx],
+                           self.inliers[idx], self.origin[idx], self.basis[idx], [self.hull[i] for i in idx],
+                           self.margin)
+
+    def _moved(self, k: int, normal: np.ndarray, offset: float) -> "StuffPlanes":
+        """These planes with plane ``k`` replaced by ``normal · x + offset = 0`` (a small turn and shift of
+        it): its origin is projected onto the new plane, its 2D axes are kept as near as the new plane allows,
+        so its hull still bounds the same stretch."""
+        normal = np.asarray(normal, np.float64)
+        origin = self.origin[k] - (self.origin[k] @ normal + offset) * normal
+        b0 = self.basis[k][0] - (self.basis[k][0] @ normal) * normal
+        b0 /= np.linalg.norm(b0)
+        b1 = np.cross(normal, b0)
+        b1 *= np.sign(b1 @ self.basis[k][1]) or 1.0
+        out = replace(self, normal=self.normal.copy(), offset=self.offset.astype(np.float64).copy(),
+                      origin=self.origin.copy(), basis=self.basis.copy())
+        out.normal[k], out.offset[k], out.origin[k], out.basis[k] = normal, offset, origin, np.stack([b0, b1])
+        return out
+
     def vertical(self, up: np.ndarray, max_tilt_deg: float = 10.0) -> np.ndarray:
         """``[P] bool``: the plane is within ``max_tilt_deg`` of vertical (a wall) for the direction ``up``."""
         return np.abs(self.normal.reshape(-1, 3) @ up) < np.sin(np.radians(max_tilt_deg))
@@ -485,11 +507,13 @@ class FloorLine:
             res = res - self.shift
         return np.where(pc[..., 2] > 0, res, np.nan)
 
-    def calibrated(self, known: "StuffPlanes", window: float = 3.0, min_count: int = 5) -> "FloorLine":
+    def calibrated(self, known: "StuffPlanes", window: float = 3.0, min_count: int = 5,
+                   unmeasured: float = 0.0) -> "FloorLine":
         """These observations with each view's boundary shift (``shift``) measured against the walls of
         ``known``: a segmenter draws a frame's wall a pixel or two too fat or too thin all along it, and where
         a known wall's foot is within ``window`` rows of the boundary, the median of those residuals (over at
-        least ``min_count`` of them) is that view's shift. Views without a known wall keep 0."""
+        least ``min_count`` of them) is that view's shift. Views without a known wall get ``unmeasured`` (NaN
+        makes their residuals NaN: they take no part)."""
         best = np.full(len(self), np.inf)
         for k in range(len(known)):
             holds = np.isin(self.classes, list(known.classes[k]))
@@ -498,7 +522,7 @@ class FloorLine:
                 idx = np.flatnonzero(holds)
                 closer = np.abs(res) < np.abs(best[idx])
                 best[idx[closer]] = res[closer]
-        shift = np.zeros(len(self))
+        shift = np.full(len(self), float(unmeasured))
         for f in np.unique(self.frame):
             m = (self.frame == f) & (np.abs(best) <= window)
             if m.sum() >= min_count:
@@ -609,36 +633,18 @@ def floor_line_walls(line: FloorLine, directions: np.ndarray, known: "StuffPlane
             if not len(idx):
                 break
             obs = line.subset(idx)
-            views, view_of = np.unique(obs.frame, return_inverse=True)
-            need = view_share * np.bincount(view_of, weights=obs.width)[:len(views)] / np.bincount(view_of)
-            onehot = np.zeros((len(obs), len(views)))
-            onehot[np.arange(len(obs)), view_of] = 1.0
             through = -(obs.foot @ n)  # the offset of the wall through each observed foot
             ok = np.abs(obs.track @ n) > 0.2
             if not ok.any():
                 break
             lo, hi = np.percentile(through[ok], [1, 99])
             grid = np.arange(lo, hi + step, step)
-            score = np.zeros(len(grid))
-            for s in range(0, len(grid), 64):
-                near = np.abs(obs.residual(n, grid[s:s + 64, None])) <= pixel_tolerance  # [g, N]
-                per_view = near.astype(np.float64) @ onehot  # [g, V]
-                good = per_view >= np.maximum(need, 1.0)
-                score[s:s + 64] = np.where(good.sum(1) >= min_views, (per_view * good).sum(1), 0.0)
+            score = _line_support(obs, n, grid, pixel_tolerance, view_share, min_views)
             g = int(np.argmax(score))
             if score[g] <= 0:
                 break
-            near = np.abs(obs.residual(n, grid[g])) <= pixel_tolerance
-            per_view = near.astype(np.float64) @ onehot
-            inl = near & (per_view >= np.maximum(need, 1.0))[view_of]
-            sub = obs.subset(inl)
-            fine = grid[g] + np.arange(-80, 81) * (step / 2)  # the inliers span a pixel: metres across a room
-            res = sub.residual(n, fine[:, None])  # [F, M]
-            frames = np.unique(sub.frame)
-            with warnings.catch_warnings():  # a view whose feet all fall behind it at some offset: NaN, skipped
-                warnings.simplefilter("ignore", RuntimeWarning)
-                balance = [abs(np.median([np.nanmedian(r[sub.frame == f]) for f in frames])) for r in res]
-            e = float(fine[int(np.nanargmin(balance))])
+            near, inl = _line_inliers(obs, n, grid[g], pixel_tolerance, view_share)
+            e = _balanced_offset(obs.subset(inl), n, grid[g], step)
             free[idx[near]] = False
             if any(abs(e - t) < 3 * threshold for t in taken):
                 continue
@@ -647,23 +653,184 @@ def floor_line_walls(line: FloorLine, directions: np.ndarray, known: "StuffPlane
     return walls
 
 
+def correct_walls(line: FloorLine, directions: np.ndarray, known: "StuffPlanes", threshold: float,
+                  pixel_tolerance: float = 1.0, min_views: int = 3, view_share: float = 0.05, reach: float = 4.0,
+                  min_gain: float = 1.5, max_tilt_deg: float = 10.0) -> tuple["StuffPlanes", int]:
+    """``known`` with each wall moved to where the views' wall-on-floor boundaries put it, when they
+    clearly disagree with it, and how many moved.
+
+    Stereo fits a plain wall to a few triangulated points; across a long room those can hold it 10–20 cm
+    inside the room or turn it a few degrees. The boundary is known to a row in every view that sees the
+    wall's foot. For each vertical plane within ``max_tilt_deg`` of one of ``directions``, the observations
+    of its classes score the plane as it is and the plane turned to that direction at offsets within
+    ``reach × threshold`` of it (:func:`floor_line_walls`' support: rows within ``pixel_tolerance``, a stretch
+    of ``view_share`` of a view's columns, ``min_views`` views). The best offset, refined where the views'
+    median residuals balance, may replace the plane when it has at least ``min_gain`` times the support of the
+    plane as it is and lies more than ``threshold / 2`` from it (or the plane turns). Each view's label
+    shift is measured against the other walls only (not against this one or another plane of the same wall);
+    a view that sees no other wall cannot tell a shifted boundary from a misplaced wall and takes no part. A
+    wrong wall skews the shift measured against it, so the wall that gains most observations moves first and
+    the rest are judged again, until none qualifies. The plane keeps its extent (its hull in its own 2D
+    coordinates), classes and residual.
+
+    Parameters
+    ----------
+    line : FloorLine
+        The boundaries (:func:`floor_line`), not yet calibrated.
+    directions : np.ndarray
+        ``[D, 3]`` unit horizontal wall normals (the room's wall directions).
+    known : StuffPlanes
+        The planes found so far.
+    threshold : float
+        The plane threshold (world units); the offset grid is a quarter of it.
+
+    Returns
+    -------
+    (StuffPlanes, int)
+        The planes, and how many walls moved.
+    """
+    if not len(line) or not len(known):
+        return known, 0
+    directions = np.asarray(directions, np.float64).reshape(-1, 3)
+    moved: set[int] = set()
+    while True:
+        best = None
+        for k in range(len(known)):
+            if k in moved:
+                continue
+            found = _wall_correction(line, directions, known, k, threshold, pixel_tolerance, min_views, view_share,
+                                     reach, min_gain, max_tilt_deg)
+            if found is not None and (best is None or found[0] > best[0]):
+                best = (*found, k)
+        if best is None:
+            return known, len(moved)
+        _, n, e, k = best
+        known = known._moved(k, n, e)
+        moved.add(k)
+
+
+def _wall_correction(line: FloorLine, directions: np.ndarray, known: "StuffPlanes", k: int, threshold: float,
+                     pixel_tolerance: float, min_views: int, view_share: float, reach: float, min_gain: float,
+                     max_tilt_deg: float) -> tuple[float, np.ndarray, float] | None:
+    """``(more, normal, offset)`` that :func:`correct_walls` would move plane ``k`` to (``more``: how many more
+    observations support it there), or None."""
+    cos = directions @ known.normal[k]
+    j = int(np.argmax(np.abs(cos)))
+    if np.abs(cos[j]) < np.cos(np.radians(max_tilt_deg)):
+        return None
+    n = directions[j] * np.sign(cos[j])
+    holds = np.isin(line.classes, list(known.classes[k]))
+    if not holds.any():
+        return None
+    step = threshold / 4
+    centre = -float(n @ known.origin[k])  # the turned plane through the middle of the plane's points
+    grid = centre + np.arange(-reach * 4, reach * 4 + 1) * step
+    same = (np.abs(known.normal @ n) > np.cos(np.radians(max_tilt_deg))) & \
+        (np.abs(-(known.origin @ n) - centre) <= reach * threshold)
+    obs = line.calibrated(known.subset(~same), window=3 * pixel_tolerance, unmeasured=np.nan).subset(holds)
+    # the observations that the plane as it is or a candidate explains: within the tolerance of the plane, or of
+    # the grid's ends, or with the grid's ends on either side of them
+    ends = obs.residual(n, grid[[0, -1]][:, None])  # [2, N]
+    with np.errstate(invalid="ignore"):
+        band = np.abs(obs.residual(known.normal[k], known.offset[k])) <= pixel_tolerance
+        band |= (np.abs(ends) <= pixel_tolerance).any(0) | (ends[0] * ends[1] < 0)
+    band &= np.isfinite(ends).all(0)
+    if band.sum() < min_views:
+        return None
+    obs = obs.subset(band)
+    now = float(_line_support(obs, known.normal[k], [known.offset[k]], pixel_tolerance, view_share, min_views)[0])
+    score = _line_support(obs, n, grid, pixel_tolerance, view_share, min_views)
+    g = int(np.argmax(score))
+    gain = score[g] / max(now, 1.0)
+    if score[g] <= 0 or gain < min_gain:
+        return None
+    _, inl = _line_inliers(obs, n, grid[g], pixel_tolerance, view_share)
+    e = _balanced_offset(obs.subset(inl), n, grid[g], step)
+    turned = float(n @ known.normal[k]) < np.cos(np.radians(0.5))
+    if abs(e - centre) <= threshold / 2 and not turned:
+        return None
+    return float(score[g] - now), n, e
+
+
+def _line_support(obs: FloorLine, n: np.ndarray, offsets: np.ndarray, pixel_tolerance: float, view_share: float,
+                  min_views: int, chunk: int = 64) -> np.ndarray:
+    """``[G]`` support of each vertical wall ``n · x + offsets[g] = 0``: the observations within
+    ``pixel_tolerance`` rows of it in views where at least ``view_share`` of the image columns (and one
+    observation) are, when at least ``min_views`` views are; 0 otherwise."""
+    views, view_of = np.unique(obs.frame, return_inverse=True)
+    need = np.maximum(view_share * np.bincount(view_of, weights=obs.width)[:len(views)] / np.bincount(view_of), 1.0)
+    onehot = np.zeros((len(obs), len(views)))
+    onehot[np.arange(len(obs)), view_of] = 1.0
+    offsets = np.asarray(offsets, np.float64)
+    score = np.zeros(len(offsets))
+    for s in range(0, len(offsets), chunk):
+        near = np.abs(obs.residual(n, offsets[s:s + chunk, None])) <= pixel_tolerance  # [g, N]
+        per_view = near.astype(np.float64) @ onehot  # [g, V]
+        good = per_view >= need
+        score[s:s + chunk] = np.where(good.sum(1) >= min_views, (per_view * good).sum(1), 0.0)
+    return score
+
+
+def _line_inliers(obs: FloorLine, n: np.ndarray, offset: float, pixel_tolerance: float,
+                  view_share: float) -> tuple[np.ndarray, np.ndarray]:
+    """``(near, inliers)``: the observations within ``pixel_tolerance`` rows of the wall ``n · x + offset = 0``,
+    and those of them in views that support it (:func:`_line_support`)."""
+    views, view_of = np.unique(obs.frame, return_inverse=True)
+    need = np.maximum(view_share * np.bincount(view_of, weights=obs.width)[:len(views)] / np.bincount(view_of), 1.0)
+    near = np.abs(obs.residual(n, offset)) <= pixel_tolerance
+    per_view = np.bincount(view_of, weights=near.astype(np.float64), minlength=len(views))
+    return near, near & (per_view >= need)[view_of]
+
+
+def _balanced_offset(sub: FloorLine, n: np.ndarray, offset: float, step: float) -> float:
+    """The offset near ``offset`` (within 40 ``step``) where the views' median residuals balance: the median of
+    each view's median, as a view's boundary tends to be off by the same pixel along its length."""
+    fine = offset + np.arange(-80, 81) * (step / 2)  # the inliers span a pixel: metres across a room
+    res = sub.residual(n, fine[:, None])  # [F, M]
+    frames = np.unique(sub.frame)
+    with warnings.catch_warnings():  # a view whose feet all fall behind it at some offset: NaN, skipped
+        warnings.simplefilter("ignore", RuntimeWarning)
+        balance = [abs(np.median([np.nanmedian(r[sub.frame == f]) for f in frames])) for r in res]
+    return float(fine[int(np.nanargmin(balance))])
+
+
+def _main_stretch(along: np.ndarray, gap: float) -> np.ndarray:
+    """``[N] bool``: the positions ``along`` (a line) of the longest-populated run without a gap over ``gap``.
+
+    >>> _main_stretch(np.array([0.0, 0.1, 0.3, 2.5, 2.6]), 0.5).tolist()
+    [True, True, True, False, False]
+    """
+    order = np.argsort(along)
+    run = np.r_[0, np.cumsum(np.diff(along[order]) > gap)]
+    keep = np.zeros(len(along), bool)
+    keep[order[run == np.argmax(np.bincount(run))]] = True
+    return keep
+
+
 def add_walls(planes: StuffPlanes, cameras, labels: dict[int, np.ndarray], line: FloorLine, walls, up: np.ndarray,
               max_height: float, threshold: float, sightlines: tuple[np.ndarray, np.ndarray],
-              max_crossing_share: float = 0.2, min_class_share: float = 0.25) -> tuple[StuffPlanes, int]:
+              max_crossing_share: float = 0.2, min_class_share: float = 0.25, gap: float | None = None
+              ) -> tuple[StuffPlanes, int]:
     """``planes`` with the walls of :func:`floor_line_walls` that the views do not contradict, and how many.
 
     Each wall's points are its observations' feet on it and the vertical lines above them while each view keeps
     labelling the line that class (spaced ``2 × threshold`` up to ``max_height``, as
-    :func:`floor_boundary_points`). A wall is kept when its points spread over an area and sight lines
+    :func:`floor_boundary_points`), of the feet's most populated stretch without a gap over ``gap`` (default
+    ``5 × threshold``) along the wall. A wall is kept when its points spread over an area and sight lines
     (``sightlines``, and the views to these points) cross it inside their hull no more than
     ``max_crossing_share`` as often as they end on it — the test of :func:`fit_planes`. It holds the classes
     of at least ``min_class_share`` of its points. The walls are added as they are: fitted again with every
     other point, their points shift RANSAC's draws (an L-shaped tuning room lost two walls that way).
     """
     added = 0
+    gap = 5 * threshold if gap is None else gap
     for normal, offset, obs in walls:
         sub = line.subset(obs)
         feet = sub.feet(normal, offset)
+        # A wall is one stretch: a few feet of another wall that happen to line up with it across the room
+        # would stretch its hull over the room (tuning room 15's inner wall, 4 m long, reached 6.4 m).
+        keep = _main_stretch(feet @ np.cross(up, normal), gap)
+        sub, feet = sub.subset(keep), feet[keep]
         xyz, cls, cam = [], [], []
         for i in np.unique(sub.frame):
             m = sub.frame == i

@@ -380,7 +380,7 @@ def _floor_line_walls(scene: Scene, frames, labels, planes, floor, stuff, cfg: I
     normals modulo a right angle, weighted by their points) and at right angles to them, of the classes
     :func:`wall_classes` allows, added by :func:`lift3d.sfm.planes.add_walls`."""
     # here, not at module level: keeps `import lift3d.train` cheap (lift3d.sfm loads OpenCV)
-    from lift3d.sfm.planes import add_walls, floor_line, floor_line_walls
+    from lift3d.sfm.planes import add_walls, correct_walls, floor_line, floor_line_walls
 
     f, n, d = floor
     vertical = np.flatnonzero(planes.vertical(n))
@@ -393,10 +393,13 @@ def _floor_line_walls(scene: Scene, frames, labels, planes, floor, stuff, cfg: I
     main = np.cos(mean) * basis[0] + np.sin(mean) * basis[1]
     line = floor_line(scene.cameras, frames, labels, n, d, planes.classes[f], wall_classes(planes, f, n, stuff))
     threshold = cfg.plane_threshold * diag
-    found = floor_line_walls(line, np.stack([main, np.cross(n, main)]), planes, threshold,
-                             pixel_tolerance=cfg.plane_line_pixels)
+    directions = np.stack([main, np.cross(n, main)])
+    moved = 0
+    if cfg.plane_floor_line_correct:
+        planes, moved = correct_walls(line, directions, planes, threshold, pixel_tolerance=cfg.plane_line_pixels)
+    found = floor_line_walls(line, directions, planes, threshold, pixel_tolerance=cfg.plane_line_pixels)
     planes, kept = add_walls(planes, scene.cameras, labels, line, found, n, max_height, threshold, sightlines)
-    return planes, {"floor_line_walls": kept, "floor_line_observations": int(len(line))}
+    return planes, {"floor_line_walls": kept, "floor_line_moved": moved, "floor_line_observations": int(len(line))}
 
 
 def _ceiling_plane(scene: Scene, frames, labels, planes, up, stuff, cfg: ImageDepthConfig, diag: float,
