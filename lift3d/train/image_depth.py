@@ -353,7 +353,9 @@ def _floor_plane(planes, up: np.ndarray) -> tuple[int, np.ndarray, float] | None
 
 def wall_classes(planes, floor: int, up: np.ndarray, stuff) -> list[int]:
     """The stuff classes that may stand on the floor as a wall: held by a vertical plane (within 10°) and not by
-    the floor plane ``floor``. A segmenter that repeats its mistakes paints ceiling or window above floor here
+    the floor plane ``floor`` — unless two or more vertical planes hold it: the floor plane also takes a wall
+    class when enough wall-labelled points lie at the wall's foot (tuning room 16), and that must not cost the
+    walls their floor line. A segmenter that repeats its mistakes paints ceiling or window above floor here
     and there; the boundary of a class no wall plane holds is no wall's foot (one test room got a vertical
     "ceiling" plane outside the room from it, which then kept its real ceiling from getting a plane).
 
@@ -367,10 +369,23 @@ def wall_classes(planes, floor: int, up: np.ndarray, stuff) -> list[int]:
     >>> f = int(np.argmax(np.abs(planes.normal[:, 2])))
     >>> wall_classes(planes, f, np.array([0, 0, 1.0]), [1, 2, 3])   # the ceiling (3) stands on nothing
     [1]
+
+    Wall points along both walls' feet (the labels' floor line) make the floor plane hold the wall class too;
+    two walls hold it, so it still stands on the floor:
+
+    >>> foot = np.c_[np.r_[np.full(40, 2.0), np.linspace(-2, 2, 40)], np.r_[np.linspace(-2, 2, 40), np.full(40, 2.0)],
+    ...              np.zeros(80)]
+    >>> wall2 = np.c_[np.random.default_rng(2).uniform([-2, 0], [2, 2.5], (60, 2))[:, 0], np.full(60, 2.0),
+    ...               np.random.default_rng(3).uniform(0, 2.5, 60)]
+    >>> planes = fit_planes(np.r_[floor, wall, wall2, foot], np.r_[np.full(200, 2), np.full(200, 1)], [1, 2, 3],
+    ...                     threshold=0.05, min_points=8, up=np.array([0, 0, 1.0]))
+    >>> f = int(np.argmax(np.abs(planes.normal[:, 2])))
+    >>> sorted(planes.classes[f]), wall_classes(planes, f, np.array([0, 0, 1.0]), [1, 2, 3])
+    ([1, 2], [1])
     """
     vertical = planes.vertical(up)
-    held = set().union(*[c for c, v in zip(planes.classes, vertical) if v]) if vertical.any() else set()
-    return [int(c) for c in stuff if c not in planes.classes[floor] and c in held]
+    walls = [c for c, v in zip(planes.classes, vertical) if v]
+    return [int(c) for c in stuff if sum(c in w for w in walls) >= (2 if c in planes.classes[floor] else 1)]
 
 
 def _floor_line_walls(scene: Scene, frames, labels, planes, floor, stuff, cfg: ImageDepthConfig, diag: float,
@@ -391,7 +406,8 @@ def _floor_line_walls(scene: Scene, frames, labels, planes, floor, stuff, cfg: I
     angle = np.arctan2(flat[:, 1], flat[:, 0])
     mean = np.angle(np.sum(planes.inliers[vertical] * np.exp(4j * angle))) / 4
     main = np.cos(mean) * basis[0] + np.sin(mean) * basis[1]
-    line = floor_line(scene.cameras, frames, labels, n, d, planes.classes[f], wall_classes(planes, f, n, stuff))
+    upright = wall_classes(planes, f, n, stuff)
+    line = floor_line(scene.cameras, frames, labels, n, d, sorted(set(planes.classes[f]) - set(upright)), upright)
     threshold = cfg.plane_threshold * diag
     directions = np.stack([main, np.cross(n, main)])
     moved = 0
