@@ -752,13 +752,19 @@ def _wall_correction(line: FloorLine, directions: np.ndarray, known: "StuffPlane
     return float(score[g] - now), n, e
 
 
+def _views_and_need(obs: FloorLine, view_share: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``(views, view_of, need)``: the views of ``obs``, each observation's index among them, and how many
+    observations each view needs to support a wall (``view_share`` of its image width, at least one)."""
+    views, view_of = np.unique(obs.frame, return_inverse=True)
+    return views, view_of, np.maximum(view_share * np.bincount(view_of, weights=obs.width)[:len(views)]
+                                      / np.bincount(view_of), 1.0)
+
 def _line_support(obs: FloorLine, n: np.ndarray, offsets: np.ndarray, pixel_tolerance: float, view_share: float,
                   min_views: int, chunk: int = 64) -> np.ndarray:
     """``[G]`` support of each vertical wall ``n · x + offsets[g] = 0``: the observations within
     ``pixel_tolerance`` rows of it in views where at least ``view_share`` of the image columns (and one
     observation) are, when at least ``min_views`` views are; 0 otherwise."""
-    views, view_of = np.unique(obs.frame, return_inverse=True)
-    need = np.maximum(view_share * np.bincount(view_of, weights=obs.width)[:len(views)] / np.bincount(view_of), 1.0)
+    views, view_of, need = _views_and_need(obs, view_share)
     onehot = np.zeros((len(obs), len(views)))
     onehot[np.arange(len(obs)), view_of] = 1.0
     offsets = np.asarray(offsets, np.float64)
@@ -775,8 +781,7 @@ def _line_inliers(obs: FloorLine, n: np.ndarray, offset: float, pixel_tolerance:
                   view_share: float) -> tuple[np.ndarray, np.ndarray]:
     """``(near, inliers)``: the observations within ``pixel_tolerance`` rows of the wall ``n · x + offset = 0``,
     and those of them in views that support it (:func:`_line_support`)."""
-    views, view_of = np.unique(obs.frame, return_inverse=True)
-    need = np.maximum(view_share * np.bincount(view_of, weights=obs.width)[:len(views)] / np.bincount(view_of), 1.0)
+    views, view_of, need = _views_and_need(obs, view_share)
     near = np.abs(obs.residual(n, offset)) <= pixel_tolerance
     per_view = np.bincount(view_of, weights=near.astype(np.float64), minlength=len(views))
     return near, near & (per_view >= need)[view_of]
