@@ -282,3 +282,23 @@ def test_under_load_measures_step_and_render_alone_and_beside_a_busy_neighbour(t
         assert res[key] > 0, key  # numbers only: no timing is asserted
     text = "\n".join(under_load_markdown(res))
     assert "## Under load" in text and "slowdown" in text
+
+
+def test_a_narrowed_run_leaves_the_checkouts_benchmark_page_alone(tmp_path, monkeypatch, capsys):
+    """Without --docs-dir only a full run regenerates docs/benchmarks.md: a run narrowed to one scene kind would
+    replace the whole page with its two rows."""
+    import lift3d.bench.runner as runner
+
+    seen = []
+
+    def fake_run(cfg):
+        seen.append(cfg.docs_dir)
+        return {"runs": [], "curves": {}, "ablation": [], "scaling": []}
+
+    monkeypatch.setattr(runner, "run_benchmark", fake_run)
+    assert main(["bench", "--scenes", "indoor", "--seeds", "0,1,2", "--out", str(tmp_path / "b")]) == 0
+    assert seen[-1] is None and "partial run (--scenes)" in capsys.readouterr().out
+    assert main(["bench", "--only", "presets", "--out", str(tmp_path / "b"), "--docs-dir", str(tmp_path / "d")]) == 0
+    assert seen[-1] == tmp_path / "d"
+    assert main(["bench", "--seeds", "0,1,2", "--out", str(tmp_path / "b")]) == 0
+    assert seen[-1] is not None and seen[-1].name == "docs"  # a full run: the checkout's docs/

@@ -26,8 +26,9 @@ scene seeds (mean ± standard deviation; default seeds 0,1,2, which no setting w
   under-load a training step and a render alone and beside one busy 2-thread process
 
 Writes OUT/results.json (per-seed values and the summary), OUT/results.csv, OUT/pareto.png,
-OUT/noise_curves.png, OUT/scaling.png, OUT/benchmarks.md and, from a source checkout, regenerates
-docs/benchmarks.md. Resumable: finished measurements are cached in OUT/cache. The full benchmark takes many
+OUT/noise_curves.png, OUT/scaling.png, OUT/benchmarks.md and, for a full run from a source checkout,
+regenerates docs/benchmarks.md (a run narrowed by --only, --scenes, --seeds, ... leaves it alone unless
+--docs-dir names where to write). Resumable: finished measurements are cached in OUT/cache. The full benchmark takes many
 hours on 2 CPU cores: --plan lists every run with an estimated time (and trains nothing), --only runs some
 sections; --quick runs tiny scenes (CI smoke test).
 
@@ -46,6 +47,32 @@ def _csv(kind):
     return parse
 
 
+#: Selection flags and the values of a full run: a run that narrows any of them writes the checkout's
+#: docs/benchmarks.md only when --docs-dir asks for it (a partial page would replace the full one).
+FULL_RUN = {"only": None, "scenes": ("indoor", "outdoor"), "presets": ("fast", "balanced"), "seeds": None,
+            "noises": ("moderate", "view-correlated"), "inputs": ("rgb", "rgb+depth"), "ablation_variants": None,
+            "ablation_modes": ("steps", "time"), "no_bounded": False, "no_ablation": False, "no_scaling": False,
+            "no_export": False, "no_profile": False, "no_under_load": False}
+
+
+def narrowed(args: argparse.Namespace) -> list[str]:
+    """The selection flags of ``args`` that narrow the run below a full benchmark (``--scenes`` ...).
+
+    >>> narrowed(argparse.Namespace(**{**FULL_RUN, "scenes": ("indoor",), "seeds": (0,)}))
+    ['--scenes', '--seeds']
+    >>> narrowed(argparse.Namespace(**{**FULL_RUN, "seeds": [0, 1, 2]}))   # the default seeds, spelt out
+    []
+    """
+    from lift3d.bench.tables import REPORT_SEEDS
+
+    def same(key: str, value) -> bool:
+        if key == "seeds" and value is not None:
+            return tuple(value) == tuple(REPORT_SEEDS)
+        return value == FULL_RUN[key] or (value is not None and FULL_RUN[key] is not None
+                                          and not isinstance(value, bool) and tuple(value) == FULL_RUN[key])
+    return ["--" + k.replace("_", "-") for k in FULL_RUN if not same(k, getattr(args, k))]
+
+
 def add_parser(subparsers, verb: str) -> argparse.ArgumentParser:
     from lift3d.bench.tables import QUICK_SEEDS, REPORT_SEEDS  # light module (no torch): keeps `lift3d --help` cheap
 
@@ -57,18 +84,18 @@ def add_parser(subparsers, verb: str) -> argparse.ArgumentParser:
     p.add_argument("--only", type=_csv(str), default=None, metavar="LIST",
                    help="run only these sections: presets, curves, ablation, bounded, scaling, export, profile, "
                         "under-load")
-    p.add_argument("--scenes", type=_csv(str), default=("indoor", "outdoor"), metavar="LIST",
+    p.add_argument("--scenes", type=_csv(str), default=FULL_RUN["scenes"], metavar="LIST",
                    help="synthetic scene kinds of the preset table (default: indoor,outdoor)")
-    p.add_argument("--presets", type=_csv(str), default=("fast", "balanced"), metavar="LIST",
+    p.add_argument("--presets", type=_csv(str), default=FULL_RUN["presets"], metavar="LIST",
                    help="presets in cost order: the first makes every row, the others the indoor RGB + depth rows "
                         "(default: fast,balanced)")
     p.add_argument("--seeds", type=_csv(int), default=None, metavar="LIST",
                    help="scene seeds every row averages over (default: "
                         f"{','.join(map(str, REPORT_SEEDS))}; with --quick {','.join(map(str, QUICK_SEEDS))}: "
                         "seeds >= 5 are for tuning and smoke tests)")
-    p.add_argument("--noises", type=_csv(str), default=("moderate", "view-correlated"), metavar="LIST",
+    p.add_argument("--noises", type=_csv(str), default=FULL_RUN["noises"], metavar="LIST",
                    help="label noise of the preset table's scenes (default: moderate,view-correlated)")
-    p.add_argument("--inputs", type=_csv(str), default=("rgb", "rgb+depth"), metavar="LIST",
+    p.add_argument("--inputs", type=_csv(str), default=FULL_RUN["inputs"], metavar="LIST",
                    help="inputs of the preset table's rows: rgb (scenes without depth maps), rgb+depth "
                         "(default: both)")
     p.add_argument("--no-bounded", action="store_true",
@@ -78,7 +105,7 @@ def add_parser(subparsers, verb: str) -> argparse.ArgumentParser:
                    help="steps of every variant in the equal-steps ablation (default: 1500, the fast preset's)")
     p.add_argument("--ablation-budget", type=float, default=600.0, metavar="S",
                    help="wall-time budget per variant in the equal-time ablation, seconds (default: 600)")
-    p.add_argument("--ablation-modes", type=_csv(str), default=("steps", "time"), metavar="LIST",
+    p.add_argument("--ablation-modes", type=_csv(str), default=FULL_RUN["ablation_modes"], metavar="LIST",
                    help="ablations to run: steps (equal steps), time (equal wall time) or both (default: steps,time)")
     p.add_argument("--ablation-variants", type=_csv(str), default=None, metavar="LIST",
                    help="ablation variants to train, of base, base+S, base+S+L_seg, base+S+L_feat and all (default: "
@@ -97,7 +124,7 @@ def add_parser(subparsers, verb: str) -> argparse.ArgumentParser:
     p.add_argument("--quick", action="store_true", help="tiny scenes and few steps (a smoke test)")
     p.add_argument("--docs-dir", metavar="DIR",
                    help="also write benchmarks.md and its pictures here (default: the checkout's docs/ for a full "
-                        "run, nothing for --quick)")
+                        "run; nothing for --quick or a run narrowed by --only, --scenes, --seeds, ...)")
     p.set_defaults(func=run)
     return p
 
@@ -115,9 +142,14 @@ def run(args: argparse.Namespace) -> int:
             raise InputError("--only", f"{(unknown or [''])[0]!r} is not a section ({', '.join(SECTIONS)})")
         switches = {s: s in args.only for s in SECTIONS}
     docs = Path(args.docs_dir) if args.docs_dir else None
+    partial = narrowed(args)
     if docs is None and not args.quick and not args.plan:
         checkout_docs = Path(__file__).resolve().parents[2] / "docs"
-        docs = checkout_docs if checkout_docs.is_dir() else None
+        if partial and checkout_docs.is_dir():
+            print(f"a partial run ({' '.join(partial)}): {checkout_docs / 'benchmarks.md'} is left as it is "
+                  "(--docs-dir DIR writes one)")
+        elif checkout_docs.is_dir():
+            docs = checkout_docs
 
     seeds = args.seeds if args.seeds is not None else (QUICK_SEEDS if args.quick else REPORT_SEEDS)
     cfg = BenchConfig(out=Path(args.out), scenes=args.scenes, presets=args.presets, seeds=seeds,
