@@ -63,7 +63,7 @@ def narrowed(args: argparse.Namespace) -> list[str]:
     >>> narrowed(argparse.Namespace(**{**FULL_RUN, "seeds": [0, 1, 2]}))   # the default seeds, spelt out
     []
     """
-    from lift3d.bench.tables import REPORT_SEEDS
+    from lift3d.bench.tables import REPORT_SEEDS  # here, not at module level: keeps `lift3d --help` cheap
 
     def same(key: str, value) -> bool:
         if key == "seeds" and value is not None:
