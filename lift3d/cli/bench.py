@@ -65,12 +65,12 @@ def narrowed(args: argparse.Namespace) -> list[str]:
     """
     from lift3d.bench.tables import REPORT_SEEDS  # here, not at module level: keeps `lift3d --help` cheap
 
-    def same(key: str, value) -> bool:
+    def full(key: str, value) -> bool:
+        value = tuple(value) if isinstance(value, list) else value
         if key == "seeds" and value is not None:
-            return tuple(value) == tuple(REPORT_SEEDS)
-        return value == FULL_RUN[key] or (value is not None and FULL_RUN[key] is not None
-                                          and not isinstance(value, bool) and tuple(value) == FULL_RUN[key])
-    return ["--" + k.replace("_", "-") for k in FULL_RUN if not same(k, getattr(args, k))]
+            return value == tuple(REPORT_SEEDS)
+        return value == FULL_RUN[key]
+    return ["--" + k.replace("_", "-") for k in FULL_RUN if not full(k, getattr(args, k))]
 
 
 def add_parser(subparsers, verb: str) -> argparse.ArgumentParser:

@@ -108,7 +108,7 @@ class StuffPlanes:
         b0 /= np.linalg.norm(b0)
         b1 = np.cross(normal, b0)
         b1 *= np.sign(b1 @ self.basis[k][1]) or 1.0
-        out = replace(self, normal=self.normal.copy(), offset=self.offset.astype(np.float64).copy(),
+        out = replace(self, normal=self.normal.copy(), offset=self.offset.astype(np.float64),
                       origin=self.origin.copy(), basis=self.basis.copy())
         out.normal[k], out.offset[k], out.origin[k], out.basis[k] = normal, offset, origin, np.stack([b0, b1])
         return out
@@ -507,6 +507,19 @@ class FloorLine:
             res = res - self.shift
         return np.where(pc[..., 2] > 0, res, np.nan)
 
+    def closest_residual(self, known: "StuffPlanes") -> np.ndarray:
+        """``[N]`` each observation's residual (:meth:`residual`) to the plane of ``known`` holding its class that
+        it is closest to in pixels; ``inf`` where no such plane gives one."""
+        best = np.full(len(self), np.inf)
+        for k in range(len(known)):
+            holds = np.isin(self.classes, list(known.classes[k]))
+            if holds.any():
+                res = self.subset(holds).residual(known.normal[k], known.offset[k])
+                idx = np.flatnonzero(holds)
+                closer = np.abs(res) < np.abs(best[idx])
+                best[idx[closer]] = res[closer]
+        return best
+
     def calibrated(self, known: "StuffPlanes", window: float = 3.0, min_count: int = 5,
                    unmeasured: float = 0.0) -> "FloorLine":
         """These observations with each view's boundary shift (``shift``) measured against the walls of
@@ -514,14 +527,7 @@ class FloorLine:
         a known wall's foot is within ``window`` rows of the boundary, the median of those residuals (over at
         least ``min_count`` of them) is that view's shift. Views without a known wall get ``unmeasured`` (NaN
         makes their residuals NaN: they take no part)."""
-        best = np.full(len(self), np.inf)
-        for k in range(len(known)):
-            holds = np.isin(self.classes, list(known.classes[k]))
-            if holds.any():
-                res = replace(self, shift=None).subset(holds).residual(known.normal[k], known.offset[k])
-                idx = np.flatnonzero(holds)
-                closer = np.abs(res) < np.abs(best[idx])
-                best[idx[closer]] = res[closer]
+        best = replace(self, shift=None).closest_residual(known)
         shift = np.full(len(self), float(unmeasured))
         for f in np.unique(self.frame):
             m = (self.frame == f) & (np.abs(best) <= window)
@@ -615,12 +621,7 @@ def floor_line_walls(line: FloorLine, directions: np.ndarray, known: "StuffPlane
     if not len(line):
         return []
     line = line.calibrated(known, window=3 * pixel_tolerance)
-    free = np.ones(len(line), bool)
-    for k in range(len(known)):
-        holds = np.isin(line.classes, list(known.classes[k]))
-        if holds.any():
-            res = line.subset(holds).residual(known.normal[k], known.offset[k])
-            free[np.flatnonzero(holds)[np.abs(res) <= pixel_tolerance]] = False
+    free = ~(np.abs(line.closest_residual(known)) <= pixel_tolerance)
     walls: list[tuple[np.ndarray, float, np.ndarray]] = []
     step = threshold / 4
     for n in np.asarray(directions, np.float64).reshape(-1, 3):
@@ -758,6 +759,7 @@ def _views_and_need(obs: FloorLine, view_share: float) -> tuple[np.ndarray, np.n
     views, view_of = np.unique(obs.frame, return_inverse=True)
     return views, view_of, np.maximum(view_share * np.bincount(view_of, weights=obs.width)[:len(views)]
                                       / np.bincount(view_of), 1.0)
+
 
 def _line_support(obs: FloorLine, n: np.ndarray, offsets: np.ndarray, pixel_tolerance: float, view_share: float,
                   min_views: int, chunk: int = 64) -> np.ndarray:
