@@ -2,6 +2,7 @@
 apart, crumbs fold into their neighbour."""
 
 import numpy as np
+import pytest
 
 from lift3d.data.cameras import Cameras, look_at
 from lift3d.export.cleanup import clean_instances, merge_fragments, segment_votes
@@ -64,6 +65,26 @@ def test_a_2d_segment_over_both_objects_in_a_minority_of_views_does_not_merge_th
     votes = segment_votes(xyz, instance, cams, np.arange(3), lambda f: maps[f])
     _, n = merge_fragments(instance, np.array([0, 7, 7]), votes, min_views=2)
     assert n == 0
+
+
+@pytest.mark.parametrize("joined_views, merged", [(1, False), (2, True), (3, True)])
+def test_a_view_that_shows_two_objects_apart_outweighs_two_that_join_them(joined_views, merged):
+    # Two cabinets side by side in three views: the segmenter joins them in 1, 2 or 3 of them. Half of the
+    # views is not enough (segmenters join touching objects more often than they split one); two thirds is.
+    rng = np.random.default_rng(1)
+    xyz = np.concatenate([_plate(-1.0, -0.1, 800, rng), _plate(0.1, 1.0, 800, rng)])
+    instance = np.array([1] * 800 + [2] * 800)
+    cams = _views()
+    apart = _segment_maps(cams, [(11, -1.0, -0.1), (12, 0.1, 1.0)])
+    joined = _segment_maps(cams, [(13, -1.0, 1.0)])
+    maps = [joined[f] if f < joined_views else apart[f] for f in range(3)]
+    votes = segment_votes(xyz, instance, cams, np.arange(3), lambda f: maps[f])
+    _, n = merge_fragments(instance, np.array([0, 7, 7]), votes, min_views=2)
+    assert n == int(merged)
+    # At the old share of one half, one joining view of two would have merged them.
+    votes2 = segment_votes(xyz, instance, cams, np.arange(2), lambda f: [joined[0], apart[1]][f])
+    assert merge_fragments(instance, np.array([0, 7, 7]), votes2, min_views=2, min_share=0.5)[1] == 1
+    assert merge_fragments(instance, np.array([0, 7, 7]), votes2, min_views=2)[1] == 0
 
 
 def test_occluded_points_do_not_vote():
