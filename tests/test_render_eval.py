@@ -568,3 +568,52 @@ def test_eval_rejects_a_bad_segment_fraction(trained, capsys):
     assert main(["eval", "--run", str(trained["run"]), "--min-segment-fraction", "-0.1", "--no-points3d",
                  "--timing-repeats", "0", "--quiet"]) == 2
     assert "--min-segment-fraction: must be in [0, 1), got -0.1" in capsys.readouterr().err
+
+
+# --------------------------------------------------------------------------------------- instance ids from the export
+def test_rendered_instance_ids_come_from_the_exported_objects():
+    from types import SimpleNamespace
+
+    from lift3d.data.cameras import Cameras, look_at
+    from lift3d.eval.evaluate import FIELD_CHANNEL_OFFSET, RenderedSplit, with_export_instances
+
+    # One camera at the origin looking along +y at a wall 2 m away; image 4 x 4. The field gave the two
+    # chairs (class 7) of the left and right halves the same channel 3; the export holds them as objects 1
+    # and 2 at x = -1 and x = +1. Class 8 has channel 5 but no exported object; class 1 is stuff.
+    cams = Cameras(c2w=look_at(np.zeros(3), np.array([0.0, 2.0, 0.0]))[None], fx=np.array([2.0]),
+                   fy=np.array([2.0]), cx=np.array([2.0]), cy=np.array([2.0]), width=np.array([4]),
+                   height=np.array([4]))
+    sem = np.array([[7, 7, 7, 7], [7, 7, 7, 7], [8, 8, 1, 1], [1, 1, 1, 1]])
+    inst = np.where(sem == 7, 3, np.where(sem == 8, 5, 0))
+    depth = np.full((4, 4), 2.0, np.float32)
+    depth[1, 0] = 0.0  # nothing hit: keeps its channel
+    rendered = RenderedSplit([0], [np.zeros((4, 4, 3), np.float32)], [depth], [sem], [inst], [np.ones((4, 4))])
+    cloud = SimpleNamespace(xyz=np.array([[-1.0, 2.0, 0.0], [1.0, 2.0, 0.0], [0.0, 2.0, -1.0]]),
+                            semantic=np.array([7, 7, 1]), instance=np.array([1, 2, 0]))
+    out = with_export_instances(rendered, SimpleNamespace(cameras=cams), cloud, things=[7, 8])
+    ids = out.instance[0]
+    assert ids[0].tolist() == [1, 1, 2, 2]  # the left half is object 1, the right half object 2
+    assert ids[1, 0] == 3 + FIELD_CHANNEL_OFFSET and ids[1, 1:].tolist() == [1, 2, 2]
+    assert ids[2].tolist() == [5 + FIELD_CHANNEL_OFFSET] * 2 + [0, 0]  # no exported class-8 object; stuff
+    assert ids[3].tolist() == [0, 0, 0, 0]
+    assert out.semantic[0] is sem and rendered.instance[0] is inst  # labels unchanged, the input untouched
+
+
+def test_eval_scores_both_instance_sources(trained, evaluated):
+    m = evaluated["metrics"]
+    assert m["instances_from"] == "field"
+    other = m["other_instances"]
+    assert other["instances_from"] == "export" and set(other) >= {"pq_scene", "pq_scene_strict", "things", "stuff"}
+    assert "instance ids from field; from export" in evaluated["stdout"]
+    export = evaluate_run(trained["run"], progress=False, write=False, timing_repeats=0, num_points=20000,
+                          instances="export")
+    assert export["instances_from"] == "export" and export["other_instances"]["instances_from"] == "field"
+    # The same renders and the same export, scored the other way round.
+    assert export["pq_scene"] == pytest.approx(other["pq_scene"], abs=1e-12)
+    assert export["other_instances"]["pq_scene"] == pytest.approx(m["pq_scene"], abs=1e-12)
+    assert export["miou"] == m["miou"]  # semantics do not depend on where instance ids come from
+
+
+def test_eval_rejects_an_unknown_instance_source(trained, capsys):
+    with pytest.raises(InputError, match="--instances"):
+        evaluate_run(trained["run"], progress=False, write=False, instances="labels")

@@ -22,7 +22,7 @@ import json
 import math
 import statistics
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from types import SimpleNamespace
 from typing import Any, Iterable, NamedTuple, Sequence
@@ -36,6 +36,7 @@ from lift3d.errors import InputError
 from lift3d.eval.frame_metrics import FRAME_METRICS, depth_reference
 from lift3d.eval.metrics import miou, pq_scene
 from lift3d.eval.points3d import points3d
+from lift3d.export.instances import nearest_instance_ids
 from lift3d.export.pointcloud import SOURCES, extract_labelled_points
 from lift3d.model.run import LoadedRun, load_run
 from lift3d.render.images import MIN_SEGMENT_FRACTION, check_min_segment_fraction, render_frame
@@ -70,6 +71,12 @@ MIN_AREA_STRICT = 0.0
 DEFAULT_SOURCE = SOURCES[0]
 #: Keys of a 2D metrics block (the lifted result and the ``pseudo_labels`` baseline share them).
 _PQ_KEYS = ("pq", "sq", "rq")
+#: Where the instance ids of the rendered frames come from (``lift3d eval --instances``): ``field``, the argmax
+#: of the instance head (the default), or ``export``, the exported cloud's objects (what instances.json lists).
+INSTANCE_SOURCES = ("field", "export")
+#: Field channels that keep their own id under ``--instances export`` (a thing class the export has no
+#: object of) are shifted by this, so they never collide with an exported object's id.
+FIELD_CHANNEL_OFFSET = 1 << 20
 
 
 class LabelStack(NamedTuple):
@@ -205,6 +212,48 @@ def render_split(loaded: LoadedRun, scene: Scene, frames: Sequence[int], *, chun
         out.instance.append(inst)
         out.confidence.append(conf)
     return out
+
+
+def with_export_instances(rendered: RenderedSplit, scene: Scene, points, things: Iterable[int]) -> RenderedSplit:
+    """``rendered`` with each thing pixel's instance id taken from an exported labelled cloud.
+
+    Every pixel of a thing class is lifted to the world along its ray by its rendered z-depth and takes the id
+    of the nearest exported point of its class (:func:`lift3d.export.instances.nearest_instance_ids`), so
+    that one object has one id in every view and the same id as in the export's ``instances.json``. The
+    export groups the field's instance channels in 3D (connected components, fragments merged where the
+    training views' 2D segments say they are one object, crumbs folded), which the per-pixel argmax over
+    channels cannot do. Pixels with no depth, or of a class the cloud has no object of, keep their channel
+    plus :data:`FIELD_CHANNEL_OFFSET`.
+
+    Parameters
+    ----------
+    rendered : RenderedSplit
+        Frames rendered from ``scene``'s cameras (depth in world units).
+    scene : Scene
+        The scene whose cameras rendered them (world frame of ``points``).
+    points
+        The export's cloud: ``xyz`` (world frame), ``semantic``, ``instance``
+        (:func:`lift3d.export.pointcloud.extract_labelled_points`).
+    things : iterable of int
+        Thing category ids.
+    """
+    cams = scene.cameras
+    things = list(things)
+    instance = []
+    for k, i in enumerate(rendered.frames):
+        sem, z = rendered.semantic[k], rendered.depth[k]
+        inst = np.where(rendered.instance[k] > 0, rendered.instance[k] + FIELD_CHANNEL_OFFSET, 0).astype(np.int64)
+        lift = np.isin(sem, things) & (z > 0)
+        if lift.any():
+            rows, cols = np.nonzero(lift)
+            x, y = cams.normalized_coords(i, cols.astype(np.float64), rows.astype(np.float64))
+            zz = z[lift].astype(np.float64)
+            c2w = cams.c2w_opencv[i]
+            xyz = np.stack([x * zz, y * zz, zz], -1) @ c2w[:3, :3].T + c2w[:3, 3]
+            ids = nearest_instance_ids(xyz, sem[lift], points.xyz, points.semantic, points.instance)
+            inst[lift] = np.where(ids > 0, ids, inst[lift])
+        instance.append(inst)
+    return replace(rendered, instance=instance)
 
 
 def gt_labels(scene: Scene, frames: Sequence[int]) -> LabelStack:
@@ -374,8 +423,10 @@ def points_from_rendered_depth(loaded: LoadedRun, scene: Scene, num_points: int 
 
 
 def points3d_block(loaded: LoadedRun, scene: Scene, num_points: int = 200_000, progress: bool = True,
-                   source: str = DEFAULT_SOURCE) -> dict | None:
+                   source: str = DEFAULT_SOURCE, points=None) -> dict | None:
     """3D metrics of the run's labelled points against ``gt/points.ply`` (None when there is no 3D GT).
+
+    ``points``, when given, is the cloud to score, already extracted with ``source`` and ``num_points``.
 
     Returns
     -------
@@ -392,7 +443,8 @@ def points3d_block(loaded: LoadedRun, scene: Scene, num_points: int = 200_000, p
     gt = scene.gt_points()
     if gt is None:
         return None
-    pts = extract_labelled_points(loaded, scene, source=source, num_points=num_points)
+    pts = points if points is not None else extract_labelled_points(loaded, scene, source=source,
+                                                                    num_points=num_points)
     r = points3d(np.asarray(pts.xyz, np.float64), np.asarray(pts.semantic).astype(np.int64),
                  np.asarray(pts.instance).astype(np.int64), gt["xyz"], np.asarray(gt["semantic"]).astype(np.int64),
                  np.asarray(gt["instance"]).astype(np.int64), things=scene.thing_ids, stuff=scene.stuff_ids,
@@ -527,6 +579,7 @@ def evaluate_run(
     chunk_size: int | None = None,
     true_poses: bool = True,
     min_segment_fraction: float = MIN_SEGMENT_FRACTION,
+    instances: str = "field",
 ) -> dict:
     """Evaluate a trained run: render the split, score it and its pseudo-label baseline, time rendering.
 
@@ -564,6 +617,11 @@ def evaluate_run(
         Thing segments under this fraction of a rendered frame take their surroundings' labels before scoring
         (:func:`lift3d.render.images.merge_small_segments`; 0 scores the raw argmax labels). Recorded in
         ``metrics.json``.
+    instances : {"field", "export"}
+        Where the rendered frames' instance ids come from: the argmax of the field's instance head (the
+        paper's rule, default), or the exported cloud's objects (:func:`with_export_instances`; the cloud is
+        the one the 3D block scores, extracted once). Both are scored when there is GT: the other one's
+        PQ^scene goes to ``metrics["other_instances"]``.
 
     Returns
     -------
@@ -586,10 +644,28 @@ def evaluate_run(
     if not frames:
         raise InputError(scene.root / "transforms.json", f"split {split!r} has no frames")
 
+    if instances not in INSTANCE_SOURCES:
+        raise InputError("--instances", f"unknown instance source {instances!r} ({', '.join(INSTANCE_SOURCES)})")
     scored_scene, poses = scoring_poses(scene, frames, true_poses)
     check_min_segment_fraction(min_segment_fraction)
     rendered = render_split(loaded, scored_scene, frames, chunk_size=chunk_size, progress=progress,
                             min_segment_fraction=min_segment_fraction)
+    metrics_render_ms, render_timing = None, None
+    if timing_repeats > 0:
+        # Timed before the export and the 3D metrics: their NumPy/SciPy thread pools keep the cores busy for a
+        # while after they return (a 2048-ray render timed right after them took 39 instead of 33 ms; 34.5 ms
+        # a second later).
+        render_timing = time_render(loaded, n_rays=2048, repeats=timing_repeats, scene=scored_scene, frame=frames[0])
+        metrics_render_ms = render_timing["median_ms"]
+
+    things = [c for c in scene.thing_ids if c in set(loaded.labels.thing_ids)] if loaded.model.has_instances else []
+    points = None
+    want_points3d = with_points3d and scene.gt_points_path is not None
+    if want_points3d or things:  # (both instance sources are scored: the export's cloud is needed for either)
+        points = extract_labelled_points(loaded, scene, source=points_source, num_points=num_points)
+    field_rendered = rendered
+    if instances == "export" and things:
+        rendered = with_export_instances(rendered, scored_scene, points, things)
     metrics: dict[str, Any] = {
         "run": str(Path(run_path).resolve()),
         "step": int(loaded.step),
@@ -603,23 +679,26 @@ def evaluate_run(
         "min_segment_fraction": float(min_segment_fraction),
         "poses": poses,
     }
+    metrics["instances_from"] = instances if things else "none (no instance head)"
     metrics.update(metrics_from_arrays(scene, frames, rendered))
-    del rendered
+    metrics["other_instances"] = None
+    if things and metrics["gt"]["panoptic"]:
+        other = with_export_instances(field_rendered, scored_scene, points, things) if instances == "field" \
+            else field_rendered
+        m = compute_2d_metrics(other.labels(), gt_labels(scene, frames), scene.thing_ids, scene.stuff_ids)
+        metrics["other_instances"] = {
+            "instances_from": "field" if instances == "export" else "export",
+            **{k: m[k] for k in ("pq_scene", "sq_scene", "rq_scene", "pq_scene_strict")},
+            "things": m["things"], "stuff": m["stuff"]}
+    del rendered, field_rendered
     metrics["frames_also_trained"], metrics["warnings"] = trained_frames_warning(scene, frames)
-
-    metrics["render_ms_per_2048_rays"] = None
-    metrics["render_timing"] = None
-    if timing_repeats > 0:
-        # Timed before the 3D metrics: their NumPy/SciPy thread pools keep the cores busy for a while after
-        # they return (a 2048-ray render timed right after them took 39 instead of 33 ms; 34.5 ms a second later).
-        timing = time_render(loaded, n_rays=2048, repeats=timing_repeats, scene=scored_scene, frame=frames[0])
-        metrics["render_ms_per_2048_rays"] = timing["median_ms"]
-        metrics["render_timing"] = timing
+    metrics["render_ms_per_2048_rays"] = metrics_render_ms
+    metrics["render_timing"] = render_timing
 
     metrics["points3d"] = None
-    if with_points3d and scene.gt_points_path is not None:
+    if want_points3d:
         metrics["points3d"] = points3d_block(loaded, scene, num_points=num_points, progress=progress,
-                                             source=points_source)
+                                             source=points_source, points=points)
     elif scene.gt_points_path is None:
         metrics["notes"].append("no gt/points.ply: no 3D metrics")
 

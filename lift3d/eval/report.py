@@ -105,6 +105,11 @@ def format_eval_table(m: dict) -> str:
         ns = m.get("stuff") or {}
         lines.append(f"{'':22}classes scored: {nt.get('n', '-')} things + {ns.get('n', '-')} stuff "
                      f"(strict {nt.get('n_strict', '-')} + {ns.get('n_strict', '-')})")
+        other = m.get("other_instances")
+        if other:
+            lines.append(f"{'':22}instance ids from {m.get('instances_from')}; from {other.get('instances_from')}: "
+                         f"PQ^scene {fmt(other.get('pq_scene'))} (strict {fmt(other.get('pq_scene_strict'))}), "
+                         f"things {fmt(_get(other, 'pq', 'things'))}")
     lines.append(" | ".join(metric.describe(m, fmt) for metric in FRAME_METRICS.values()))
     p = m.get("points3d")
     if p:

@@ -15,6 +15,9 @@ Three steps turn points into what a robot map consumes:
 3. :func:`instance_records` summarises every instance: class, count, centroid, axis-aligned and oriented
    bounding box (Open3D), mean confidence.
 
+:func:`nearest_instance_ids` carries the exported ids back to anything else in 3D, e.g. the surface points
+of rendered pixels, so that renders and the exported map name each object alike.
+
 Examples
 --------
 >>> import numpy as np
@@ -31,6 +34,7 @@ from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
+from scipy.spatial import cKDTree
 
 #: Neighbour offsets that, with their negatives, make the 26-neighbourhood of a voxel (each edge once).
 _HALF_NEIGHBOURHOOD = np.array(
@@ -177,8 +181,6 @@ def _relabel_fragments(xyz, semantic, component, in_fragment, keep, max_distance
     """Give every fragment the majority (class, component) of its surroundings, in place; drop isolated
     fragments, except those in ``stay_when_isolated`` (component ids), which then stay as they are. Majority
     over all neighbour votes of the fragment's points, so a fragment stays one piece."""
-    from scipy.spatial import cKDTree
-
     anchors = np.flatnonzero(~in_fragment)
     frag_points = np.flatnonzero(in_fragment)
     # Only anchors near a fragment can vote: keep those in the 27 cells (of side max_distance) around the
@@ -241,6 +243,45 @@ def _contiguous_ids(xyz: np.ndarray, component: np.ndarray, keep: np.ndarray) ->
 
 
 # ------------------------------------------------------------------------------------------ down-sampling
+def nearest_instance_ids(query_xyz: np.ndarray, query_semantic: np.ndarray, xyz: np.ndarray,
+                         semantic: np.ndarray, instance: np.ndarray) -> np.ndarray:
+    """The id of the nearest exported thing point of the same class, for each query point.
+
+    Parameters
+    ----------
+    query_xyz : np.ndarray
+        ``[Q, 3]`` points, in the frame of ``xyz``.
+    query_semantic : np.ndarray
+        ``[Q]`` their category ids.
+    xyz, semantic, instance : np.ndarray
+        An exported labelled cloud: ``[N, 3]`` points, ``[N]`` category and instance ids (0 = stuff).
+
+    Returns
+    -------
+    np.ndarray
+        ``[Q]`` int64 instance ids; 0 where the cloud has no instance of the query's class.
+
+    Examples
+    --------
+    >>> xyz = np.array([[0.0, 0, 0], [1, 0, 0], [5, 0, 0]]); sem = np.array([7, 7, 8]); inst = np.array([1, 2, 3])
+    >>> nearest_instance_ids(np.array([[0.2, 0, 0], [0.9, 0, 0], [0.3, 0, 0], [9, 9, 9]]), np.array([7, 7, 8, 9]),
+    ...                      xyz, sem, inst).tolist()
+    [1, 2, 3, 0]
+    """
+    query_xyz = np.asarray(query_xyz, np.float64).reshape(-1, 3)
+    query_semantic = np.asarray(query_semantic).ravel()
+    semantic, instance = np.asarray(semantic).ravel(), np.asarray(instance).ravel()
+    out = np.zeros(len(query_xyz), np.int64)
+    for c in np.unique(query_semantic):
+        source = (semantic == c) & (instance > 0)
+        if not source.any():
+            continue
+        ask = query_semantic == c
+        _, nearest = cKDTree(np.asarray(xyz, np.float64)[source]).query(query_xyz[ask])
+        out[ask] = instance[source][nearest]
+    return out
+
+
 def voxel_downsample_majority(xyz: np.ndarray, rgb: np.ndarray, semantic: np.ndarray, channel: np.ndarray,
                               confidence: np.ndarray, voxel_size: float) -> tuple[np.ndarray, ...]:
     """Voxel down-sampling that keeps labels exact: one point per occupied voxel.
