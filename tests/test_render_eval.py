@@ -601,17 +601,17 @@ def test_rendered_instance_ids_come_from_the_exported_objects():
 
 def test_eval_scores_both_instance_sources(trained, evaluated):
     m = evaluated["metrics"]
-    assert m["instances_from"] == "field"
+    assert m["instances_from"] == "export"
     other = m["other_instances"]
-    assert other["instances_from"] == "export" and set(other) >= {"pq_scene", "pq_scene_strict", "things", "stuff"}
-    assert "instance ids from field; from export" in evaluated["stdout"]
-    export = evaluate_run(trained["run"], progress=False, write=False, timing_repeats=0, num_points=20000,
-                          instances="export")
-    assert export["instances_from"] == "export" and export["other_instances"]["instances_from"] == "field"
+    assert other["instances_from"] == "field" and set(other) >= {"pq_scene", "pq_scene_strict", "things", "stuff"}
+    assert "instance ids from export; from field" in evaluated["stdout"]
+    field = evaluate_run(trained["run"], progress=False, write=False, timing_repeats=0, num_points=20000,
+                         instances="field")
+    assert field["instances_from"] == "field" and field["other_instances"]["instances_from"] == "export"
     # The same renders and the same export, scored the other way round.
-    assert export["pq_scene"] == pytest.approx(other["pq_scene"], abs=1e-12)
-    assert export["other_instances"]["pq_scene"] == pytest.approx(m["pq_scene"], abs=1e-12)
-    assert export["miou"] == m["miou"]  # semantics do not depend on where instance ids come from
+    assert field["pq_scene"] == pytest.approx(other["pq_scene"], abs=1e-12)
+    assert field["other_instances"]["pq_scene"] == pytest.approx(m["pq_scene"], abs=1e-12)
+    assert field["miou"] == m["miou"]  # semantics do not depend on where instance ids come from
 
 
 def test_eval_rejects_an_unknown_instance_source(trained, capsys):

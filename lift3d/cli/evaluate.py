@@ -17,10 +17,10 @@ the scene's own 2D pseudo-labels (the baseline lifting has to beat), with a thin
        tau = 1 % of the GT box diagonal)
   speed  ms to render 2048 rays (rgb+depth+semantic+instance), median of 10 after 2 warm-up runs
 
-Instance ids of the rendered frames are the argmax of the field's instance head (Panoptic Lifting's rule;
---instances field, the default). With --instances export each thing pixel takes the id of the nearest point
-of its class in the labelled cloud the 3D block scores, the id instances.json gives that object. Both are
-scored; the other source's PQ^scene is printed under the table.
+Instance ids of the rendered frames are the exported objects' (--instances export, the default): each thing
+pixel takes the id of the nearest point of its class in the labelled cloud the 3D block scores, the id
+instances.json gives that object. --instances field scores the argmax of the field's instance head
+(Panoptic Lifting's rule). Both are scored; the other source's PQ^scene is printed under the table.
 
 Frames whose true pose is known (gt_transform_matrix beside a noisy transform_matrix, as lift3d synth
 --pose-noise writes) are rendered from the true pose (--no-true-poses: from the written one).
@@ -56,9 +56,9 @@ def add_parser(subparsers, verb: str) -> argparse.ArgumentParser:
     p.add_argument("--min-segment-fraction", type=float, default=None, metavar="F",
                    help="thing segments under this fraction of a rendered frame take the labels around them "
                         "before scoring (default: 0.001; 0 scores the raw argmax labels)")
-    p.add_argument("--instances", default="field", choices=("field", "export"),
-                   help="instance ids of the renders: the instance head's argmax (default) or the exported "
-                        "objects'")
+    p.add_argument("--instances", default="export", choices=("export", "field"),
+                   help="instance ids of the renders: the exported objects' (default) or the instance head's "
+                        "argmax")
     p.add_argument("--device", default="auto", metavar="DEV", help="auto, cpu or cuda[:N] (default: auto)")
     p.add_argument("--threads", type=int, default=None, metavar="N",
                    help="CPU threads (default: $LIFT3D_THREADS or every CPU)")

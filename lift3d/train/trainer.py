@@ -567,5 +567,6 @@ def format_summary(result: TrainResult, cfg: Config) -> str:
     lines += image_depth_lines(cfg.scene.get("image_depth"))
     if ev:
         lines.append(f"  held-out views PSNR {ev['psnr']:.2f} dB, mIoU {ev['miou']:.3f}, PQ^scene {ev['pq_scene']:.3f} "
-                     f"(against {ev['against'].replace('_', '-')}; run `lift3d eval --run {result.run.path}` for all metrics)")
+                     f"(against {ev['against'].replace('_', '-')}, the instance head's ids; run `lift3d eval --run "
+                     f"{result.run.path}` for all metrics)")
     return "\n".join(lines)
