@@ -617,3 +617,18 @@ def test_eval_scores_both_instance_sources(trained, evaluated):
 def test_eval_rejects_an_unknown_instance_source(trained, capsys):
     with pytest.raises(InputError, match="--instances"):
         evaluate_run(trained["run"], progress=False, write=False, instances="labels")
+
+
+def test_eval_without_a_usable_export_scores_the_heads_ids(trained, monkeypatch):
+    import lift3d.eval.evaluate as ev
+
+    def no_surface(*args, **kwargs):
+        raise InputError("run", "the field has no surface at density 1 (train longer)")
+
+    monkeypatch.setattr(ev, "extract_labelled_points", no_surface)
+    m = evaluate_run(trained["run"], with_points3d=False, progress=False, write=False, timing_repeats=0)
+    assert m["instances_from"].startswith("field (no export:") and "no surface" in m["instances_from"]
+    assert m["other_instances"] is None and m["pq_scene"] is not None
+    # With the 3D block asked for, the export's error is the eval's error (as before).
+    with pytest.raises(InputError, match="no surface"):
+        evaluate_run(trained["run"], progress=False, write=False, timing_repeats=0)

@@ -662,9 +662,17 @@ def evaluate_run(
     things = [c for c in scene.thing_ids if c in set(loaded.labels.thing_ids)] if loaded.model.has_instances else []
     points = None
     want_points3d = with_points3d and scene.gt_points_path is not None
+    export_failed = None
     if want_points3d or things:  # (both instance sources are scored: the export's cloud is needed for either)
-        points = extract_labelled_points(loaded, scene, source=points_source, num_points=num_points)
+        try:
+            points = extract_labelled_points(loaded, scene, source=points_source, num_points=num_points)
+        except InputError as exc:  # e.g. a field with no surface yet: the 3D block cannot do without it
+            if want_points3d:
+                raise
+            export_failed = str(exc)
     field_rendered = rendered
+    if points is None:
+        things = []  # no export to take ids from: the head's ids, and nothing to compare them with
     if instances == "export" and things:
         rendered = with_export_instances(rendered, scored_scene, points, things)
     metrics: dict[str, Any] = {
@@ -680,7 +688,12 @@ def evaluate_run(
         "min_segment_fraction": float(min_segment_fraction),
         "poses": poses,
     }
-    metrics["instances_from"] = instances if things else "none (no instance head)"
+    if things:
+        metrics["instances_from"] = instances
+    elif not loaded.model.has_instances:
+        metrics["instances_from"] = "none (no instance head)"
+    else:
+        metrics["instances_from"] = f"field (no export: {export_failed})" if export_failed else "field"
     metrics.update(metrics_from_arrays(scene, frames, rendered))
     metrics["other_instances"] = None
     if things and metrics["gt"]["panoptic"]:
