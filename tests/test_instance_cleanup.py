@@ -54,13 +54,20 @@ def test_fragments_one_2d_segment_covers_merge_and_neighbours_stay_apart():
     assert n_other == 0
 
 
-def test_a_2d_segment_over_both_objects_in_a_minority_of_views_does_not_merge_them():
+def _side_by_side():
+    """Two objects (instances 1 and 2) side by side, the three views, and each view's 2D segments with the
+    two apart and joined."""
     rng = np.random.default_rng(1)
     xyz = np.concatenate([_plate(-1.0, -0.1, 800, rng), _plate(0.1, 1.0, 800, rng)])
     instance = np.array([1] * 800 + [2] * 800)
     cams = _views()
     apart = _segment_maps(cams, [(11, -1.0, -0.1), (12, 0.1, 1.0)])
     joined = _segment_maps(cams, [(13, -1.0, 1.0)])
+    return xyz, instance, cams, apart, joined
+
+
+def test_a_2d_segment_over_both_objects_in_a_minority_of_views_does_not_merge_them():
+    xyz, instance, cams, apart, joined = _side_by_side()
     maps = [joined[0], apart[1], apart[2]]  # the segmenter merged the two objects in one view of three
     votes = segment_votes(xyz, instance, cams, np.arange(3), lambda f: maps[f])
     _, n = merge_fragments(instance, np.array([0, 7, 7]), votes, min_views=2)
@@ -71,12 +78,7 @@ def test_a_2d_segment_over_both_objects_in_a_minority_of_views_does_not_merge_th
 def test_a_view_that_shows_two_objects_apart_outweighs_two_that_join_them(joined_views, merged):
     # Two cabinets side by side in three views: the segmenter joins them in 1, 2 or 3 of them. Half of the
     # views is not enough (segmenters join touching objects more often than they split one); two thirds is.
-    rng = np.random.default_rng(1)
-    xyz = np.concatenate([_plate(-1.0, -0.1, 800, rng), _plate(0.1, 1.0, 800, rng)])
-    instance = np.array([1] * 800 + [2] * 800)
-    cams = _views()
-    apart = _segment_maps(cams, [(11, -1.0, -0.1), (12, 0.1, 1.0)])
-    joined = _segment_maps(cams, [(13, -1.0, 1.0)])
+    xyz, instance, cams, apart, joined = _side_by_side()
     maps = [joined[f] if f < joined_views else apart[f] for f in range(3)]
     votes = segment_votes(xyz, instance, cams, np.arange(3), lambda f: maps[f])
     _, n = merge_fragments(instance, np.array([0, 7, 7]), votes, min_views=2)
