@@ -187,6 +187,25 @@ class Cameras:
         und = und.reshape(-1, 2)
         return und[:, 0], und[:, 1]
 
+    def unproject(self, i: int, u: np.ndarray, v: np.ndarray, z: np.ndarray) -> np.ndarray:
+        """World points of pixel centres ``(u, v)`` of frame ``i`` at z-depth ``z`` (along the optical axis).
+
+        Returns
+        -------
+        np.ndarray
+            ``[N, 3]`` float64.
+
+        Examples
+        --------
+        >>> cams = Cameras(c2w=np.eye(4)[None], fx=2.0, fy=2.0, cx=2.0, cy=2.0, width=4, height=4)
+        >>> cams.unproject(0, np.array([1.5]), np.array([1.5]), np.array([3.0])).tolist()  # the image centre
+        [[0.0, 0.0, -3.0]]
+        """
+        x, y = self.normalized_coords(i, u, v)
+        z = np.asarray(z, np.float64)
+        c2w = self.c2w_opencv[i]
+        return np.stack([x * z, y * z, z], -1) @ c2w[:3, :3].T + c2w[:3, 3]
+
     def rays(self, i: int, u: np.ndarray, v: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """World-space ray origins and unit directions through pixel centres of frame ``i``.
 

@@ -242,7 +242,6 @@ def _contiguous_ids(xyz: np.ndarray, component: np.ndarray, keep: np.ndarray) ->
     return out
 
 
-# ------------------------------------------------------------------------------------------ down-sampling
 def nearest_instance_ids(query_xyz: np.ndarray, query_semantic: np.ndarray, xyz: np.ndarray,
                          semantic: np.ndarray, instance: np.ndarray) -> np.ndarray:
     """The id of the nearest exported thing point of the same class, for each query point.
@@ -282,6 +281,7 @@ def nearest_instance_ids(query_xyz: np.ndarray, query_semantic: np.ndarray, xyz:
     return out
 
 
+# ------------------------------------------------------------------------------------------ down-sampling
 def voxel_downsample_majority(xyz: np.ndarray, rgb: np.ndarray, semantic: np.ndarray, channel: np.ndarray,
                               confidence: np.ndarray, voxel_size: float) -> tuple[np.ndarray, ...]:
     """Voxel down-sampling that keeps labels exact: one point per occupied voxel.

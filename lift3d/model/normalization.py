@@ -114,10 +114,7 @@ def infer_normalization(scene: Scene, margin: float = 1.05) -> tuple[SceneNormal
             vv, uu = np.mgrid[0:h:4, 0:w:4]
             z = d[vv, uu]
             ok = z > 0
-            x, y = scene.cameras.normalized_coords(i, uu[ok], vv[ok])
-            p_cam = np.stack([x * z[ok], y * z[ok], z[ok]], -1)
-            c2w = scene.cameras.c2w_opencv[i]
-            pts.append(p_cam @ c2w[:3, :3].T + c2w[:3, 3])
+            pts.append(scene.cameras.unproject(i, uu[ok], vv[ok], z[ok]))
         pts = np.concatenate(pts) if pts else cams
         lo, hi = np.percentile(pts, 1, axis=0), np.percentile(pts, 99, axis=0)
         spread = max(float(np.ptp(cams, axis=0).max()), 1e-6)
