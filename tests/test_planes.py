@@ -291,6 +291,31 @@ def test_a_plain_ceiling_gets_its_plane_from_where_the_labels_put_it_on_the_wall
     assert ceiling_height(cams, range(4), windows, planes, UP, 0.0, [WINDOW], threshold=0.1, min_points=8)[0] is None
 
 
+def test_a_window_whose_sill_is_above_the_eyes_is_no_ceiling_because_its_wall_goes_on_above_it():
+    # Windows from 1.7 to 2.2 m in every wall, cameras at 1.5 m: the sill is above the eyes, a level plane there
+    # would cut the room in two. Above the sill there is the window's lintel, wall: a ceiling has none above it.
+    cams, labels = _labelled_box_views()
+    xyz, cls, _ = floor_boundary_points(cams, range(4), labels, UP, 0.0, [FLOOR], [WALL], step=0.1, max_height=2.5,
+                                        tolerance=0.15)
+    floor = np.c_[np.random.default_rng(0).uniform([-2.9, -1.9], [2.9, 1.9], (3000, 2)), np.zeros(3000)]
+    planes = fit_planes(np.r_[xyz, floor], np.r_[cls, np.full(3000, FLOOR)], [WALL, FLOOR, CEILING, WINDOW],
+                        threshold=0.1, min_points=8, up=UP, margin=0.3)
+    cams, labels = _labelled_box_views(pitch_deg=-15.0)
+    windowed = {}
+    for k, lab in labels.items():
+        o, d = cams.rays(k, *np.mgrid[0:96, 0:96][::-1].reshape(2, -1))
+        t_wall = np.min([np.where(d[:, a] != 0, (np.sign(d[:, a]) * v - o[:, a]) / d[:, a], np.inf)
+                         for a, v in ((0, 3.0), (1, 2.0))], axis=0)
+        z = (o[:, 2] + t_wall * d[:, 2]).reshape(96, 96)
+        windowed[k] = np.where((lab == WALL) & (z > 1.7) & (z < 2.2), WINDOW, lab)
+    assert sum(int((lab == WINDOW).sum()) for lab in windowed.values()) > 500
+    top, count = ceiling_height(cams, range(4), windowed, planes, UP, 0.0, [WINDOW], threshold=0.1, min_points=8)
+    assert top is None and count == 0
+    # the ceiling above the same walls keeps its height
+    top, _ = ceiling_height(cams, range(4), windowed, planes, UP, 0.0, [CEILING], threshold=0.1, min_points=8)
+    assert top == pytest.approx(2.5, abs=0.05)
+
+
 def test_a_plane_reaches_only_a_margin_beyond_its_points():
     rng = np.random.default_rng(1)
     pts = np.c_[rng.uniform(0, 1, 50), rng.uniform(0, 1, 50), np.zeros(50)]
@@ -354,6 +379,30 @@ def test_an_inner_wall_of_an_l_shaped_room_is_found_and_does_not_reach_across_th
     # The margin still fills a corner where two walls' points stop short of it.
     t, _ = planes.first_hit(np.array([[0.0, 0.0, 1.5]]), np.array([[1.0, 1.0, 0.0]]) / np.sqrt(2))
     assert t[0] == pytest.approx(3.0 * np.sqrt(2), abs=0.1)
+
+def test_a_margin_the_views_see_through_does_not_stop_a_ray():
+    # The L-shaped room without the points of its inner wall x = -1: nothing separates the other inner wall
+    # (y = -1, x from -3 to -1) from the open wing x > -1, and its 1 m margin reached across it. A ray along -y
+    # at x = -0.5 passed y = -1 inside that margin and stopped there instead of at the wall y = -3.
+    pts, cls, (cam, seen) = _l_room(np.random.default_rng(4))
+    inner = (np.abs(pts[:, 0] + 1) < 0.02) & (pts[:, 1] < -1) & (cls == WALL)
+    drop = np.isin(seen, pts[inner]).all(axis=1)
+    planes = fit_planes(pts[~inner], cls[~inner], [WALL, FLOOR], threshold=0.05, min_points=8, margin=1.0, up=UP,
+                        sightlines=(cam[~drop], seen[~drop]))
+    assert not any(abs(n[0]) > 0.99 and abs(d - 1.0) < 0.05 for n, d in zip(planes.normal, planes.offset))
+    o, d = np.array([[-0.5, 2.0, 1.5], [-2.0, 2.0, 1.5]]), np.tile([0.0, -1.0, 0.0], (2, 1))
+    assert planes.first_hit(o, d)[0] == pytest.approx([3.0, 3.0], abs=0.05)
+    # views from the top of the room through the gap to the far wall y = -3 (a plane sweep's points on it)
+    xz = np.stack(np.meshgrid(np.linspace(-0.95, -0.05, 19), np.linspace(0.1, 2.9, 29)), -1).reshape(-1, 2)
+    far = np.c_[xz[:, 0], np.full(len(xz), -3.0), xz[:, 1]]
+    eyes = np.tile([-0.5, 2.5, 1.5], (len(far), 1))
+    seen_through = planes.with_seen_through(np.r_[cam[~drop], eyes], np.r_[seen[~drop], far], threshold=0.05)
+    # the ray past the wall's end goes on to the far wall; the one in front of the wall still meets it
+    assert seen_through.first_hit(o, d)[0] == pytest.approx([5.0, 3.0], abs=0.05)
+    # and the margin still fills the room's corners, where no sight line passes
+    corner = np.array([[0.0, 0.0, 1.5]]), np.array([[1.0, 1.0, 0.0]]) / np.sqrt(2)
+    assert seen_through.first_hit(*corner)[0][0] == pytest.approx(3.0 * np.sqrt(2), abs=0.1)
+
 
 def test_point_class_is_the_majority_of_its_observations_when_they_agree():
     obs_point = np.array([0, 0, 0, 1, 1, 2, 2, 2, 2])

@@ -135,6 +135,10 @@ class ImageDepthConfig:
     before fitting, so densely matched spots do not outvote sparsely matched walls; 0 keeps every point."""
     plane_margin: float = 0.1
     """``planes``: how far a plane reaches beyond the hull of its points, as a fraction of the diagonal."""
+    plane_margin_seen_through: bool = True
+    """``planes``: a plane's margin does not reach where sight lines to points beyond the plane pass through it
+    (:meth:`lift3d.sfm.planes.StuffPlanes.with_seen_through`): the inner wall of an L-shaped room whose other
+    inner wall has no plane no longer reaches into the other wing."""
     plane_stride: int = 4
     """``planes``: a target at every ``plane_stride``-th pixel of each row and column (planes cover most of a
     view; denser targets would crowd out the sparse points on objects when target rays are drawn)."""
