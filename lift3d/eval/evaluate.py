@@ -574,7 +574,7 @@ def evaluate_run(
     chunk_size: int | None = None,
     true_poses: bool = True,
     min_segment_fraction: float = MIN_SEGMENT_FRACTION,
-    instances: str = "export",
+    instances: str = INSTANCE_SOURCES[0],
 ) -> dict:
     """Evaluate a trained run: render the split, score it and its pseudo-label baseline, time rendering.
 

@@ -123,12 +123,8 @@ class StuffPlanes:
         cameras, points = np.asarray(cameras, np.float64), np.asarray(points, np.float64)
         blocked = []
         for k in range(len(self)):
-            sc, sp = cameras @ self.normal[k] + self.offset[k], points @ self.normal[k] + self.offset[k]
-            cross = (np.sign(sc) != np.sign(sp)) & (np.abs(sp) > threshold) & (np.abs(sc) > 0)
-            c, p = cameras[cross], points[cross]
-            x = c + (sc[cross] / (sc[cross] - sp[cross]))[:, None] * (p - c)
-            p2 = (x - self.origin[k]) @ self.basis[k].T
-            beyond = np.max(p2 @ self.hull[k][:, :2].T + self.hull[k][:, 2], axis=1) if len(p2) else np.zeros(0)
+            x = _crossing_points((cameras, points), self.normal[k], self.offset[k], threshold)
+            p2, beyond = _beyond_hull(x, self.origin[k], self.basis[k], self.hull[k])
             p2 = p2[(beyond > 0) & (beyond <= self.margin + cell)]
             blocked.append(np.unique(_cell_keys(np.floor(p2 / cell).astype(np.int64))))
         return replace(self, seen_through=blocked, cell=cell)
@@ -210,8 +206,7 @@ class StuffPlanes:
                 continue
             idx = np.flatnonzero(ok)
             p = origins[idx] + t[idx, None] * directions[idx]
-            p2 = (p - self.origin[k]) @ self.basis[k].T
-            beyond = np.max(p2 @ self.hull[k][:, :2].T + self.hull[k][:, 2], axis=1)  # > 0 outside the hull
+            p2, beyond = _beyond_hull(p, self.origin[k], self.basis[k], self.hull[k])
             inside = beyond <= self.margin
             # Beyond its hull a plane reaches only where no other plane separates the spot from its points: the
             # margin fills a room's corners, but an inner wall of an L-shaped room does not reach across the room.
@@ -1133,22 +1128,30 @@ def _crossings(sightlines, n: np.ndarray, d: float, extent, threshold: float) ->
     Only the hull counts, not the margin targets may reach beyond it: the margin of an inner wall of an
     L-shaped room reaches into the room, where every sight line to the far walls crosses it (tuning scene 100:
     1.6 crossings per supporting sight line with a margin of 10 % of the diagonal, 0.05 without)."""
-    cam, pt = sightlines
-    sc, sp = cam @ n + d, pt @ n + d
-    origin, basis, hull = extent
+    pt = sightlines[1]
 
     def inside(x: np.ndarray) -> int:
-        p2 = (x - origin) @ basis.T
-        return int(np.all(p2 @ hull[:, :2].T + hull[:, 2] <= threshold, axis=1).sum())
+        return int((_beyond_hull(x, *extent)[1] <= threshold).sum())
 
-    on = np.abs(sp) < threshold
-    support = inside(pt[on]) if on.any() else 0
+    return inside(_crossing_points(sightlines, n, d, threshold)), inside(pt[np.abs(pt @ n + d) < threshold])
+
+
+def _crossing_points(sightlines, n: np.ndarray, d: float, threshold: float) -> np.ndarray:
+    """``[K, 3]``: where the sight lines (``(cameras, seen points)``) whose point lies more than ``threshold``
+    beyond the plane ``n · x + d = 0``, on the other side from its camera, pass through it."""
+    cam, pt = sightlines
+    sc, sp = cam @ n + d, pt @ n + d
     cross = (np.sign(sc) != np.sign(sp)) & (np.abs(sp) > threshold) & (np.abs(sc) > 0)
-    if not cross.any():
-        return 0, support
     c, p = cam[cross], pt[cross]
-    f = (sc[cross] / (sc[cross] - sp[cross]))[:, None]
-    return inside(c + f * (p - c)), support
+    return c + (sc[cross] / (sc[cross] - sp[cross]))[:, None] * (p - c)
+
+
+def _beyond_hull(x: np.ndarray, origin: np.ndarray, basis: np.ndarray, hull: np.ndarray
+                 ) -> tuple[np.ndarray, np.ndarray]:
+    """Points ``x`` (``[N, 3]``, on a plane) in the plane's 2D coordinates (``[N, 2]``) and how far beyond the
+    hull (``[E, 3]`` half-planes, unit normals) each lies (``[N]``; at most 0 inside)."""
+    p2 = (x - origin) @ basis.T
+    return p2, (np.max(p2 @ hull[:, :2].T + hull[:, 2], axis=1) if len(p2) else np.zeros(0))
 
 
 def _cell_keys(ij: np.ndarray) -> np.ndarray:
