@@ -17,7 +17,8 @@ from lift3d.data.images import read_label_map, read_rgb
 from lift3d.errors import InputError
 from lift3d.export import export_run
 from lift3d.model import run as run_module
-from lift3d.render.output import DEPTH_PNG_UNIT, render_to_folder
+from lift3d.export.renders import render_to_folder
+from lift3d.render.output import DEPTH_PNG_UNIT
 
 ROOT = Path(__file__).resolve().parent.parent
 
@@ -52,7 +53,7 @@ def test_classes_without_the_scene_folder(run, monkeypatch):
 
 def test_render_equals_lift3d_render(run, tiny_run, tmp_path):
     res = render_to_folder(tiny_run, tmp_path, ["rgb", "depth", "semantic", "instance"], split="test",
-                           previews=False, progress=False, device="cpu")
+                           previews=False, progress=False, device="cpu", instances="field")
     scene = run.scene()
     cams = scene.cameras
     i = int(scene.split("test")[0])

@@ -144,12 +144,63 @@ def test_render_ids_and_depth_are_exact(trained, rendered):
         inst = _read(rendered["dir"] / "instance" / f"{stem}.png")
         depth_mm = _read(rendered["dir"] / "depth" / f"{stem}.png")
         np.testing.assert_array_equal(sem, ref.semantic)
-        np.testing.assert_array_equal(inst, np.where(ref.semantic > 0, ref.instance, 0))
         assert not inst[np.isin(sem, scene.stuff_ids)].any(), "instance must be 0 on stuff"
         expect_mm = np.where(ref.depth > 0, np.round(ref.depth.astype(np.float64) * 1000), 0)
         assert np.abs(depth_mm.astype(np.int64) - expect_mm).max() <= 1  # float32 round-off at .5 mm
         rgb = cv2.cvtColor(_read(rendered["dir"] / "rgb" / f"{stem}.png"), cv2.COLOR_BGR2RGB)
         assert np.abs(rgb.astype(int) - np.round(ref.rgb * 255).astype(int)).max() <= 1
+
+
+def test_rendered_instance_ids_are_the_exports_objects(trained, rendered, tmp_path):
+    """By default an object's id in the images is its id in ``lift3d export --pointcloud``'s instances.json;
+    ``--instances field`` writes the field's channels, exactly as render_frame gives them."""
+    with contextlib.redirect_stdout(io.StringIO()):
+        assert main(["export", "--run", str(trained["run"]), "--pointcloud", "--output-dir", str(tmp_path / "x"),
+                     "--quiet"]) == 0
+    records = json.loads((tmp_path / "x" / "instances.json").read_text())
+    records = records["instances"] if isinstance(records, dict) else records
+    class_of = {int(r["id"]): int(r["class_id"]) for r in records}
+    assert _strict_json(rendered["dir"] / "panoptic.json")["info"]["instances_from"] == "export"
+    scene = load_scene(trained["scene"])
+    seen = set()
+    for i in scene.split(rendered["split"]):
+        stem = scene.frames[i].name
+        sem = _read(rendered["dir"] / "semantic" / f"{stem}.png").astype(np.int64)
+        inst = _read(rendered["dir"] / "instance" / f"{stem}.png").astype(np.int64)
+        for k in np.unique(inst[inst > 0]).tolist():
+            assert k in class_of, (k, sorted(class_of))  # every id is an exported object...
+            assert set(np.unique(sem[inst == k]).tolist()) == {class_of[k]}  # ...of the pixels' class
+            seen.add(k)
+    assert seen, "the run's renders show no exported object"
+
+    loaded = load_run(trained["run"], "cpu")
+    with contextlib.redirect_stdout(io.StringIO()):
+        assert main(["render", "--run", str(trained["run"]), "--split", "test", "--outputs", "semantic", "instance",
+                     "--instances", "field", "--no-previews", "--output-dir", str(tmp_path / "f"), "--quiet"]) == 0
+    rays = loaded.rays(scene)
+    for i in scene.split("test"):
+        ref = render_frame(loaded.model, rays, int(i), loaded.norm.scale)
+        inst = _read(tmp_path / "f" / "instance" / f"{scene.frames[i].name}.png")
+        np.testing.assert_array_equal(inst, np.where(ref.semantic > 0, ref.instance, 0))
+
+
+def test_frame_instance_ids_lift_each_pixel_where_its_ray_ends(trained):
+    """At any downscale a pixel is lifted to the point its rendered ray reaches (built the renderer's way)."""
+    from lift3d.export.instances import frame_instance_ids
+
+    scene = load_scene(trained["scene"])
+    loaded = load_run(trained["run"], "cpu")
+    i = int(scene.split("test")[0])
+    for ds in (1, 2, 3):
+        o, d, cos, (h, w) = loaded.rays(scene).image_rays(i, ds)
+        depth = np.linspace(1.0, 3.0, h * w).reshape(h, w).astype(np.float32)  # z-depth, world units
+        # The renderer's depth is the ray's length in the field's frame times cos / scale (render_frame).
+        t = torch.from_numpy(depth.ravel()).double() * loaded.norm.scale / cos.double()
+        xyz = loaded.norm.to_world((o.double() + d.double() * t[:, None]).numpy())
+        sem = np.full((h, w), 7)
+        ids = frame_instance_ids(scene.cameras, i, sem, depth, xyz, np.full(h * w, 7), np.arange(1, h * w + 1),
+                                 things=[7], downscale=ds)
+        assert np.array_equal(ids.ravel(), np.arange(1, h * w + 1)), ds
 
 
 def test_panoptic_png_and_json_agree_and_ids_are_consistent_across_frames(trained, rendered):

@@ -12,7 +12,9 @@ Render a trained run's views into DIR/<output>/<frame stem>.png:
   rgb          8-bit RGB
   depth        16-bit PNG, z-depth in millimetres (0 = nothing hit or farther than 65.535 m) + depth_vis preview
   semantic     16-bit PNG of category ids (0 = void) + semantic_vis preview in the category colours
-  instance     16-bit PNG of 3D instance ids (1..V on things, 0 on stuff and void) + instance_vis preview
+  instance     16-bit PNG of 3D instance ids + instance_vis preview: on things the id of the object in
+               instances.json of `lift3d export --pointcloud` (default settings), 0 on stuff, void and
+               thing pixels no exported object is near; --instances field: the field's channels 1..V
   panoptic     COCO panoptic PNG + DIR/panoptic.json (segments_info: id, category_id, area, bbox, score =
                mean confidence); segment id = category_id * 1000 + instance, the same in every frame
   confidence   16-bit PNG, probability of the chosen class x 65535
@@ -22,7 +24,8 @@ world frame) with fl_x/fl_y/cx/cy/w/h (or fov); see docs/metrics.md#camera-paths
 examples:
   lift3d render --run outputs/room0/fast/2026-11-22_101500 --split test --output-dir renders
   lift3d render --run RUN --outputs rgb panoptic --downscale 2 --output-dir previews
-  lift3d render --run RUN --camera-path orbit.json --outputs rgb semantic --output-dir orbit"""
+  lift3d render --run RUN --camera-path orbit.json --outputs rgb semantic --output-dir orbit
+  lift3d render --run RUN --outputs instance --instances field --output-dir channels"""
 
 
 def add_parser(subparsers, verb: str) -> argparse.ArgumentParser:
@@ -49,6 +52,9 @@ def add_parser(subparsers, verb: str) -> argparse.ArgumentParser:
     p.add_argument("--min-segment-fraction", type=float, default=None, metavar="F",
                    help="thing segments under this fraction of a frame take the labels around them "
                         "(default: 0.001; 0 writes the raw argmax labels)")
+    p.add_argument("--instances", default="export", choices=("export", "field"),
+                   help="instance ids of thing pixels: the exported objects' (default; extracts the run's "
+                        "labelled cloud first, a few seconds) or the field's channels")
     p.add_argument("--chunk-size", type=int, default=None, metavar="RAYS",
                    help="rays rendered at once (lower it when memory is short; default: the run's setting)")
     p.add_argument("--device", default="auto", metavar="DEV", help="auto, cpu or cuda[:N] (default: auto)")
@@ -63,7 +69,7 @@ def run(args: argparse.Namespace) -> int:
     """Render, then print one line saying what was written where."""
     # here, not at module level: keeps `lift3d --help` cheap (torch)
     from lift3d.render.images import MIN_SEGMENT_FRACTION
-    from lift3d.render.output import render_to_folder
+    from lift3d.export.renders import render_to_folder
     from lift3d.utils.device import set_threads
 
     set_threads(args.threads)
@@ -72,9 +78,11 @@ def run(args: argparse.Namespace) -> int:
         downscale=args.downscale, chunk_size=args.chunk_size, device=args.device, previews=not args.no_previews,
         progress=not args.quiet,
         min_segment_fraction=MIN_SEGMENT_FRACTION if args.min_segment_fraction is None else args.min_segment_fraction,
+        instances=args.instances,
     )
     what = f"camera path {args.camera_path}" if args.camera_path else f"split {args.split}"
     print(f"lift3d render: {len(res.stems)} frames of {what} ({res.size[1]}x{res.size[0]}) in {res.seconds:.1f} s "
           f"-> {res.output_dir} [{', '.join(res.outputs)}]"
-          + (f"; {res.panoptic_json}" if res.panoptic_json else ""))
+          + (f"; {res.panoptic_json}" if res.panoptic_json else "")
+          + (f"; instance ids: {res.instances_from}" if {"instance", "panoptic"} & set(res.outputs) else ""))
     return 0

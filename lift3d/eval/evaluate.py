@@ -36,7 +36,7 @@ from lift3d.errors import InputError
 from lift3d.eval.frame_metrics import FRAME_METRICS, depth_reference
 from lift3d.eval.metrics import miou, pq_scene
 from lift3d.eval.points3d import points3d
-from lift3d.export.instances import nearest_instance_ids
+from lift3d.export.instances import frame_instance_ids
 from lift3d.export.pointcloud import SOURCES, extract_labelled_points
 from lift3d.model.run import LoadedRun, load_run
 from lift3d.render.images import MIN_SEGMENT_FRACTION, check_min_segment_fraction, render_frame
@@ -219,7 +219,7 @@ def with_export_instances(rendered: RenderedSplit, scene: Scene, points, things:
     """``rendered`` with each thing pixel's instance id taken from an exported labelled cloud.
 
     Every pixel of a thing class is lifted to the world along its ray by its rendered z-depth and takes the id
-    of the nearest exported point of its class (:func:`lift3d.export.instances.nearest_instance_ids`), so
+    of the nearest exported point of its class (:func:`lift3d.export.instances.frame_instance_ids`), so
     that one object has one id in every view and the same id as in the export's ``instances.json``. The
     export groups the field's instance channels in 3D (connected components, fragments merged where the
     training views' 2D segments say they are one object, crumbs folded), which the per-pixel argmax over
@@ -238,19 +238,13 @@ def with_export_instances(rendered: RenderedSplit, scene: Scene, points, things:
     things : iterable of int
         Thing category ids.
     """
-    cams = scene.cameras
     things = list(things)
     instance = []
     for k, i in enumerate(rendered.frames):
-        sem, z = rendered.semantic[k], rendered.depth[k]
-        inst = np.where(rendered.instance[k] > 0, rendered.instance[k] + FIELD_CHANNEL_OFFSET, 0).astype(np.int64)
-        lift = np.isin(sem, things) & (z > 0)
-        if lift.any():
-            rows, cols = np.nonzero(lift)
-            xyz = cams.unproject(i, cols, rows, z[lift])
-            ids = nearest_instance_ids(xyz, sem[lift], points.xyz, points.semantic, points.instance)
-            inst[lift] = np.where(ids > 0, ids, inst[lift])
-        instance.append(inst)
+        field = np.where(rendered.instance[k] > 0, rendered.instance[k] + FIELD_CHANNEL_OFFSET, 0).astype(np.int64)
+        ids = frame_instance_ids(scene.cameras, i, rendered.semantic[k], rendered.depth[k], points.xyz,
+                                 points.semantic, points.instance, things)
+        instance.append(np.where(ids > 0, ids, field))
     return replace(rendered, instance=instance)
 
 

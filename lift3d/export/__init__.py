@@ -11,6 +11,8 @@ Modules:
 - :mod:`lift3d.export.json_files` — ``classes.json`` / ``instances.json`` / ``metadata.json``;
 - :mod:`lift3d.export.scene_graph` — ``scene_graph.json`` (objects, the stuff they stand on, relations);
 - :mod:`lift3d.export.ground` — the scene's up axis and its floor-like classes;
+- :mod:`lift3d.export.renders` — :func:`~lift3d.export.renders.render_to_folder` (``lift3d render``), with the
+  exported objects' ids in the instance images;
 - :mod:`lift3d.export.api` — loading exports downstream (``lift3d.load_labelled_points``, ``lift3d.instances``).
 
 :func:`export_run` is what ``lift3d export`` runs. Importing this package is cheap (``lift3d.load_labelled_points``

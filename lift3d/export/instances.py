@@ -281,6 +281,54 @@ def nearest_instance_ids(query_xyz: np.ndarray, query_semantic: np.ndarray, xyz:
     return out
 
 
+def frame_instance_ids(cameras, frame: int, semantic: np.ndarray, depth: np.ndarray, xyz: np.ndarray,
+                       cloud_semantic: np.ndarray, cloud_instance: np.ndarray, things, downscale: int = 1) -> np.ndarray:
+    """Exported instance ids for the thing pixels of one rendered frame.
+
+    Each pixel of a thing class is lifted to the world along its ray by its rendered z-depth and takes the id
+    of the nearest exported point of its class (:func:`nearest_instance_ids`), so that one object has one id
+    in every view, the id of its record in ``instances.json``.
+
+    Parameters
+    ----------
+    cameras : lift3d.data.cameras.Cameras
+        The cameras that rendered the frame, in the frame of ``xyz``.
+    frame : int
+        Index of the camera in ``cameras``.
+    semantic, depth : np.ndarray
+        ``[H', W']`` rendered category ids and z-depth (0 = nothing hit).
+    xyz, cloud_semantic, cloud_instance : np.ndarray
+        The exported cloud: ``[N, 3]`` points, ``[N]`` category and instance ids (0 = stuff).
+    things : iterable of int
+        Thing category ids.
+    downscale : int
+        The frame was rendered at every ``downscale``-th pixel block (its pixels are the blocks' centres).
+
+    Returns
+    -------
+    np.ndarray
+        ``[H', W']`` int64 ids; 0 on stuff, void, pixels with no depth and classes the cloud has no object of.
+
+    Examples
+    --------
+    >>> from lift3d.data.cameras import Cameras
+    >>> cams = Cameras(c2w=np.eye(4)[None], fx=2.0, fy=2.0, cx=1.0, cy=1.0, width=2, height=2)
+    >>> sem, z = np.array([[7, 7], [1, 7]]), np.array([[3.0, 3.0], [3.0, 0.0]])
+    >>> cloud = np.array([[-0.75, 0.75, -3.0], [0.75, 0.75, -3.0]])  # what the two top pixels see
+    >>> frame_instance_ids(cams, 0, sem, z, cloud, np.array([7, 7]), np.array([4, 9]), things=[7]).tolist()
+    [[4, 9], [0, 0]]
+    """
+    semantic, depth = np.asarray(semantic), np.asarray(depth)
+    out = np.zeros(semantic.shape, np.int64)
+    lift = np.isin(semantic, list(things)) & (depth > 0)
+    if lift.any():
+        rows, cols = np.nonzero(lift)
+        off = (downscale - 1) / 2.0  # the centre of a downscale x downscale block, as a pixel index
+        world = cameras.unproject(frame, cols * downscale + off, rows * downscale + off, depth[lift])
+        out[lift] = nearest_instance_ids(world, semantic[lift], xyz, cloud_semantic, cloud_instance)
+    return out
+
+
 # ------------------------------------------------------------------------------------------ down-sampling
 def voxel_downsample_majority(xyz: np.ndarray, rgb: np.ndarray, semantic: np.ndarray, channel: np.ndarray,
                               confidence: np.ndarray, voxel_size: float) -> tuple[np.ndarray, ...]:

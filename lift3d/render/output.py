@@ -7,7 +7,8 @@ Layout (``DIR`` = ``--output-dir``, ``<stem>`` = the frame's file-name stem)::
     DIR/depth_vis/<stem>.png      colourised depth (turbo colour map, one range for all frames)
     DIR/semantic/<stem>.png       uint16 category ids (0 = void)
     DIR/semantic_vis/<stem>.png   the scene's category colours
-    DIR/instance/<stem>.png       uint16 3D instance ids (1..V on things, 0 on stuff and void)
+    DIR/instance/<stem>.png       uint16 3D instance ids (on things: the exported object's id by default,
+                                  see lift3d.export.renders; 0 on stuff and void)
     DIR/instance_vis/<stem>.png   one colour per instance id (the same in every frame), black = none
     DIR/panoptic/<stem>.png       COCO panoptic PNG (id = R + 256 G + 256² B)
     DIR/panoptic.json             COCO panoptic JSON of those PNGs (segments_info with area, bbox, score)
@@ -26,7 +27,6 @@ only. ``panoptic.json`` is written once, after the last frame.
 from __future__ import annotations
 
 import math
-import time
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Iterable, Sequence
@@ -38,13 +38,10 @@ from lift3d.data.cameras import Cameras, is_rigid
 from lift3d.data.categories import Category
 from lift3d.data.images import write_label_map, write_panoptic_png, write_rgb
 from lift3d.errors import InputError
-from lift3d.model.run import load_run
-from lift3d.render.images import MIN_SEGMENT_FRACTION, FrameRender, check_min_segment_fraction, render_frame
-from lift3d.render.rays import RayGenerator
+from lift3d.render.images import FrameRender
 from lift3d.utils.atomic import write_json_atomic
 from lift3d.utils.colors import hash_colors
 from lift3d.utils.files import read_json
-from lift3d.utils.progress import progress_bar
 
 __all__ = [
     "OUTPUTS",
@@ -519,103 +516,3 @@ def _camera_intrinsics(cam: dict, top: dict, defaults: Cameras | None, path: Pat
 
 
 # --------------------------------------------------------------------------------------- the render loop
-@dataclass
-class RenderResult:
-    """What :func:`render_to_folder` wrote."""
-
-    output_dir: Path
-    outputs: list[str]
-    stems: list[str]
-    seconds: float
-    panoptic_json: Path | None
-    size: tuple[int, int]  # (H, W) of the first frame
-
-
-def render_to_folder(
-    run: str | Path,
-    output_dir: str | Path,
-    outputs: Sequence[str] = DEFAULT_OUTPUTS,
-    *,
-    split: str = "test",
-    camera_path: str | Path | None = None,
-    data: str | Path | None = None,
-    downscale: int = 1,
-    chunk_size: int | None = None,
-    device: str = "auto",
-    previews: bool = True,
-    progress: bool = True,
-    min_segment_fraction: float = MIN_SEGMENT_FRACTION,
-) -> RenderResult:
-    """Render a split of the run's scene (or a camera path) into ``output_dir``.
-
-    Parameters
-    ----------
-    run : str or Path
-        Run folder (its newest readable checkpoint is used).
-    output_dir : str or Path
-        Where ``<output>/<stem>.png`` (and ``panoptic.json``) go.
-    outputs : sequence of str
-        Names from :data:`OUTPUTS`; previews are added unless ``previews`` is False.
-    split : str
-        ``train``, ``val`` or ``test`` (ignored with ``camera_path``).
-    camera_path : str or Path, optional
-        A camera path JSON (:func:`load_camera_path`) to render instead of a split.
-    data : str or Path, optional
-        The scene folder, when it moved since training.
-    downscale : int
-        Render every ``downscale``-th pixel block (images ``downscale`` times smaller).
-    chunk_size : int, optional
-        Rays per rendering chunk (memory vs. speed); default from the run's config.
-    device : str
-        ``auto``, ``cpu`` or ``cuda[:N]``.
-    previews, progress : bool
-        Colourised previews; progress bar.
-    min_segment_fraction : float
-        Thing segments under this fraction of a frame take their surroundings' labels
-        (:func:`lift3d.render.images.merge_small_segments`; 0 writes the raw argmax labels).
-
-    Returns
-    -------
-    RenderResult
-    """
-    if downscale < 1:
-        raise InputError("--downscale", f"must be a positive integer (got {downscale})")
-    check_min_segment_fraction(min_segment_fraction)
-    if chunk_size is not None and chunk_size < 1:
-        raise InputError("--chunk-size", f"must be a positive number of rays (got {chunk_size})")
-    names = resolve_outputs(outputs, previews)
-    loaded = load_run(run, device)
-    scene = None
-    try:
-        scene = loaded.scene(data)
-    except InputError:
-        if camera_path is None or data is not None:
-            raise  # a split needs the scene's cameras; a --data that does not load is always an error
-    categories = list(scene.categories) if scene is not None else list(loaded.classes.values())
-    if camera_path is not None:
-        cp = load_camera_path(camera_path, scene.cameras if scene is not None else None)
-        rays = RayGenerator(cp.cameras, loaded.norm.c2w_normalized(cp.cameras.c2w), loaded.device)
-        indices, stems = list(range(len(cp.stems))), cp.stems
-        source = {"camera_path": str(Path(camera_path).resolve())}
-    else:
-        assert scene is not None
-        rays = loaded.rays(scene)
-        indices = [int(i) for i in scene.split(split)]
-        stems = [scene.frames[i].name for i in indices]
-        source = {"split": split, "scene": str(scene.root.resolve())}
-    if not indices:
-        raise InputError("--split", f"split {split!r} has no frames")
-
-    writer = RenderedOutputWriter(Path(output_dir), names, categories,
-                                  num_instance_channels=int(loaded.cfg.field.num_instance_channels))
-    needs_labels = bool(set(names) - {"rgb", "depth", "depth_vis"})
-    start = time.perf_counter()
-    size = (0, 0)
-    for i, stem in progress_bar(list(zip(indices, stems)), desc="render", disable=not progress, unit="frame"):
-        fr = render_frame(loaded.model, rays, i, loaded.norm.scale, downscale=downscale, with_labels=needs_labels,
-                          chunk_size=chunk_size, min_segment_fraction=min_segment_fraction)
-        if size == (0, 0):
-            size = fr.rgb.shape[:2]
-        writer.write(stem, fr)
-    pj = writer.finish({"run": str(Path(run).resolve()), "step": loaded.step, "downscale": downscale, **source})
-    return RenderResult(Path(output_dir), names, stems, time.perf_counter() - start, pj, size)
