@@ -93,6 +93,10 @@ def add_parser(subparsers, verb: str) -> argparse.ArgumentParser:
     g.add_argument("--no-merge-fragments", dest="merge_fragments", action="store_false",
                    help="keep instances of one class apart even when one 2D segment covers them in the training "
                         "views (default: they merge; see docs/export.md)")
+    g.add_argument("--no-orient-stuff", dest="orient_stuff", action="store_false",
+                   help="keep the field's stuff labels where two stuff surfaces meet (default: a stuff point that "
+                        "faces the way a neighbouring stuff class faces, and not the way its own class does, takes "
+                        "that class; see docs/export.md)")
     g.add_argument("--crumb-points", type=int, default=None, metavar="N",
                    help="instances under N points fold into their neighbour (default: the points of a patch one "
                         "instance link radius on a side; 0 = keep all)")
@@ -160,7 +164,8 @@ def run(args: argparse.Namespace) -> int:
         source=args.source, num_points=args.num_points, frame=args.frame, density_threshold=args.density_threshold,
         refine_surface=args.refine_surface, min_confidence=args.min_confidence, voxel_size=args.voxel_size,
         remove_outliers=args.remove_outliers, std_ratio=args.std_ratio, obb=obb, min_points=args.min_points,
-        merge_fragments=args.merge_fragments, crumb_points=args.crumb_points, **cleanup, device=args.device,
+        merge_fragments=args.merge_fragments, crumb_points=args.crumb_points, orient_stuff=args.orient_stuff,
+        **cleanup, device=args.device,
     )
     print(format_summary(summary))
     return 0

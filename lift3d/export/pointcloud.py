@@ -54,6 +54,7 @@ from lift3d.data.scene import Scene
 from lift3d.errors import InputError
 from lift3d.export.cleanup import clean_instances
 from lift3d.export.instances import assign_instances, voxel_downsample_majority
+from lift3d.export.stuff import orient_stuff_labels
 from lift3d.export.mesh import (
     CameraVisibility,
     _check_frame,
@@ -180,7 +181,7 @@ def extract_labelled_points(loaded: LoadedRun, scene: Scene, *, source: str = "s
                             remove_outliers: bool = False, std_ratio: float = 2.0, obb=None, min_points: int = 0,
                             merge_fragments: bool = True, crumb_points: int | None = None,
                             min_instance_confidence: float = MIN_INSTANCE_CONFIDENCE,
-                            min_support_views: int = MIN_SUPPORT_VIEWS, device=None,
+                            min_support_views: int = MIN_SUPPORT_VIEWS, orient_stuff: bool = True, device=None,
                             progress: bool = False) -> LabelledPoints:
     """A labelled point cloud of a trained run (see the module docstring for the sources and filters).
 
@@ -227,6 +228,10 @@ def extract_labelled_points(loaded: LoadedRun, scene: Scene, *, source: str = "s
         Instances that the 2D pseudo-labels confirm as a thing (most of their visible points on one 2D thing
         segment) in fewer training views fold into their surroundings as crumbs do (default
         :data:`MIN_SUPPORT_VIEWS`; 0 keeps them).
+    orient_stuff : bool
+        Stuff points whose surface faces the way a neighbouring stuff class faces, and not the way their own
+        class does, take that class (:func:`lift3d.export.stuff.orient_stuff_labels`: ceiling is not wall
+        where the two meet; default on).
     device : str, optional
         Move the model to this device first (``cpu``, ``cuda``, ``auto``).
     progress : bool
@@ -298,6 +303,13 @@ def extract_labelled_points(loaded: LoadedRun, scene: Scene, *, source: str = "s
     scale_out = 1.0 if frame == "normalized" else 1.0 / float(loaded.norm.scale)
     # Instances link across gaps of about two grid cells, 1.5 point spacings (sparse clouds) or one voxel.
     link = max(cand["link_radius_normalized"] * scale_out, 1.5 * typical_spacing(xyz), voxel_size)
+    if orient_stuff:
+        t = time.perf_counter()
+        # Two link radii: about the width over which the label grid's cells blur an edge between two surfaces.
+        semantic, thresholds["stuff_orientation"] = orient_stuff_labels(xyz, semantic, scene.stuff_ids,
+                                                                        radius=2.0 * link)
+        timings["stuff_orientation"] = time.perf_counter() - t
+        t = time.perf_counter()
     assignment = assign_instances(xyz, semantic, channel, link_radius=link, min_points=int(min_points))
     k = assignment.keep
     timings["instances"] = time.perf_counter() - t
