@@ -106,12 +106,12 @@ def test_nothing_to_do_with_one_stuff_class():
     assert np.array_equal(new, sem) and stats["moved"] == 0 and new is not sem
 
 
-def test_export_records_the_step_and_can_skip_it(tiny_run, tmp_path):
+def test_export_records_the_step_for_points_and_mesh_and_can_skip_it(tiny_run, tmp_path):
     from lift3d.cli.main import main
 
     for flag, out in (([], tmp_path / "on"), (["--no-orient-stuff"], tmp_path / "off")):
-        assert main(["export", "--run", str(tiny_run), "--pointcloud", "--num-points", "4000", "--output-dir",
-                     str(out), "--quiet", *flag]) == 0
+        assert main(["export", "--run", str(tiny_run), "--pointcloud", "--mesh", "--resolution", "32",
+                     "--num-points", "4000", "--output-dir", str(out), "--quiet", *flag]) == 0
     on = json.loads((tmp_path / "on" / "metadata.json").read_text())
     off = json.loads((tmp_path / "off" / "metadata.json").read_text())
 
@@ -125,6 +125,9 @@ def test_export_records_the_step_and_can_skip_it(tiny_run, tmp_path):
                     return r
         return None
 
-    step = find(on)
+    step = find(on["thresholds"]["points"])
     assert step is not None and {"moved", "moves", "radius", "cone_degrees"} <= set(step)
+    mesh_step = on["thresholds"]["mesh"]["stuff_orientation"]
+    # The mesh labels its edges over the point cloud's distance, whatever its own resolution.
+    assert mesh_step["radius"] == pytest.approx(step["radius"], rel=1e-6)
     assert find(off) is None

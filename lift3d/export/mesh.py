@@ -61,6 +61,7 @@ from scipy.spatial import cKDTree
 from lift3d.data.scene import Scene
 from lift3d.errors import InputError
 from lift3d.export.instances import assign_instances
+from lift3d.export.stuff import orient_stuff_labels
 from lift3d.field.encodings import uncontract
 from lift3d.model.normalization import SceneNormalization
 from lift3d.model.panoptic import PanopticModel
@@ -133,6 +134,11 @@ def lattice_resolution(model: PanopticModel) -> int:
     """Cells per axis of the field's finest lattice (:attr:`~lift3d.field.base.Field.finest_resolution`), or
     :data:`DEFAULT_LATTICE` for a field without one (the plain MLP)."""
     return int(model.field.finest_resolution) or DEFAULT_LATTICE
+
+
+def point_surface_resolution(model: PanopticModel) -> int:
+    """Isosurface grid cells per axis for point clouds: the field's finest lattice, in [128, 256]."""
+    return int(np.clip(lattice_resolution(model), 128, 256))
 
 
 def train_frames(scene: Scene) -> np.ndarray:
@@ -624,8 +630,8 @@ class LabelledMesh:
 
 
 def extract_labelled_mesh(loaded: LoadedRun, scene: Scene, *, resolution: int = 256, density_threshold: float | None = None,
-                          refine_surface: bool = True, frame: str = "world", min_points: int = 0, device=None,
-                          progress: bool = False) -> LabelledMesh:
+                          refine_surface: bool = True, frame: str = "world", min_points: int = 0,
+                          orient_stuff: bool = True, device=None, progress: bool = False) -> LabelledMesh:
     """The density isosurface with labels queried at every vertex.
 
     Vertex colour is the colour head seen from the nearest training camera. Instances follow
@@ -646,6 +652,9 @@ def extract_labelled_mesh(loaded: LoadedRun, scene: Scene, *, resolution: int = 
     frame : {"world", "normalized"}
     min_points : int
         Instance fragments with fewer vertices are relabelled (see ``assign_instances``).
+    orient_stuff : bool
+        Stuff vertices take the class their surface's orientation says, as the point cloud's do
+        (:func:`lift3d.export.stuff.orient_stuff_labels`, over the same distance; default on).
     device : str, optional
         Move the model to this device first.
     """
@@ -671,7 +680,15 @@ def extract_labelled_mesh(loaded: LoadedRun, scene: Scene, *, resolution: int = 
     transform = world_from_normalized(loaded.norm)
     xyz = to_frame(surface.vertices, transform, frame)
     grid_step_out = _length_to_frame(_normalized_voxel(surface), loaded.norm, frame)
-    assignment = assign_instances(xyz, labels.semantic, labels.channel, link_radius=2.0 * grid_step_out,
+    semantic = labels.semantic
+    thresholds: dict[str, Any] = {}
+    if orient_stuff:
+        # The point cloud's distance (two link radii of its grid: four of its cells), whatever this mesh's
+        # resolution, so that points and mesh label an edge alike.
+        point_cell = grid_step_out * surface.resolution / point_surface_resolution(model)
+        semantic, thresholds["stuff_orientation"] = orient_stuff_labels(xyz, semantic, scene.stuff_ids,
+                                                                        radius=4.0 * point_cell)
+    assignment = assign_instances(xyz, semantic, labels.channel, link_radius=2.0 * grid_step_out,
                                   min_points=min_points)
     faces = surface.faces
     keep = assignment.keep
@@ -679,8 +696,8 @@ def extract_labelled_mesh(loaded: LoadedRun, scene: Scene, *, resolution: int = 
         faces = faces[keep[faces].all(-1)]
         remap = np.cumsum(keep) - 1
         faces = remap[faces]
-    thresholds = {"density": tau, "density_rule": info, "resolution": surface.resolution,
-                  "refine": surface.stats.get("refine", "off (vertices on the exact isosurface)")}
+    thresholds.update(density=tau, density_rule=info, resolution=surface.resolution,
+                      refine=surface.stats.get("refine", "off (vertices on the exact isosurface)"))
     return LabelledMesh(
         vertices=xyz[keep].astype(np.float32), faces=faces.astype(np.int64), rgb=labels.rgb[keep],
         semantic=assignment.semantic[keep], instance=assignment.instance[keep],

@@ -62,6 +62,7 @@ from lift3d.export.mesh import (
     field_isosurface,
     lattice_resolution,
     normalized_cameras,
+    point_surface_resolution,
     refine_to_rendered_surface,
     to_frame,
     train_frames,
@@ -381,11 +382,6 @@ def typical_spacing(xyz: np.ndarray, sample: int = 20000, seed: int = 0) -> floa
 
 
 # ------------------------------------------------------------------------------------------ sources
-def surface_resolution(loaded: LoadedRun) -> int:
-    """Isosurface grid cells per axis for point clouds: the field's finest lattice, in [128, 256]."""
-    return int(np.clip(lattice_resolution(loaded.model), 128, 256))
-
-
 def _surface_points(loaded: LoadedRun, scene: Scene, num_points: int, density_threshold, progress: bool,
                     timings: dict[str, float], refine: bool = True) -> dict[str, Any]:
     """Area-uniform samples on the seen part of the isosurface, labelled by the heads."""
@@ -400,7 +396,7 @@ def _surface_points(loaded: LoadedRun, scene: Scene, num_points: int, density_th
                                                 "value": float(density_threshold)}
     timings["threshold"] = time.perf_counter() - t
     t = time.perf_counter()
-    surface = field_isosurface(model, tau, surface_resolution(loaded), progress=progress)
+    surface = field_isosurface(model, tau, point_surface_resolution(loaded.model), progress=progress)
     timings["isosurface"] = time.perf_counter() - t
     if len(surface.faces) == 0:
         raise InputError(loaded.run.path, f"the field has no surface at density {tau:.4g} (train longer, or pass a "
