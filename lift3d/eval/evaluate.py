@@ -36,7 +36,7 @@ from lift3d.errors import InputError
 from lift3d.eval.frame_metrics import FRAME_METRICS, depth_reference
 from lift3d.eval.metrics import miou, pq_scene
 from lift3d.eval.points3d import points3d
-from lift3d.export.instances import frame_instance_ids
+from lift3d.export.instances import INSTANCE_SOURCES, check_instance_source, frame_instance_ids
 from lift3d.export.pointcloud import SOURCES, extract_labelled_points
 from lift3d.model.run import LoadedRun, load_run
 from lift3d.render.images import MIN_SEGMENT_FRACTION, check_min_segment_fraction, render_frame
@@ -71,10 +71,6 @@ MIN_AREA_STRICT = 0.0
 DEFAULT_SOURCE = SOURCES[0]
 #: Keys of a 2D metrics block (the lifted result and the ``pseudo_labels`` baseline share them).
 _PQ_KEYS = ("pq", "sq", "rq")
-#: Where the instance ids of the rendered frames come from (``lift3d eval --instances``): ``export``, the
-#: exported cloud's objects (what instances.json lists; the default), or ``field``, the argmax of the instance
-#: head. Export by default: on eight tuning rooms its PQ^scene was 0.033 higher on average (docs/benchmarks.md).
-INSTANCE_SOURCES = ("export", "field")
 #: Field channels that keep their own id under ``--instances export`` (a thing class the export has no
 #: object of) are shifted by this, so they never collide with an exported object's id.
 FIELD_CHANNEL_OFFSET = 1 << 20
@@ -633,8 +629,7 @@ def evaluate_run(
     if not frames:
         raise InputError(scene.root / "transforms.json", f"split {split!r} has no frames")
 
-    if instances not in INSTANCE_SOURCES:
-        raise InputError("--instances", f"unknown instance source {instances!r} ({', '.join(INSTANCE_SOURCES)})")
+    check_instance_source(instances)
     scored_scene, poses = scoring_poses(scene, frames, true_poses)
     check_min_segment_fraction(min_segment_fraction)
     rendered = render_split(loaded, scored_scene, frames, chunk_size=chunk_size, progress=progress,

@@ -36,6 +36,8 @@ from typing import Any
 import numpy as np
 from scipy.spatial import cKDTree
 
+from lift3d.errors import InputError
+
 #: Neighbour offsets that, with their negatives, make the 26-neighbourhood of a voxel (each edge once).
 _HALF_NEIGHBOURHOOD = np.array(
     [(di, dj, dk) for di in (-1, 0, 1) for dj in (-1, 0, 1) for dk in (-1, 0, 1) if (di, dj, dk) > (0, 0, 0)],
@@ -279,6 +281,20 @@ def nearest_instance_ids(query_xyz: np.ndarray, query_semantic: np.ndarray, xyz:
         _, nearest = cKDTree(np.asarray(xyz, np.float64)[source]).query(query_xyz[ask])
         out[ask] = instance[source][nearest]
     return out
+
+
+#: Where the instance ids of rendered thing pixels come from (``lift3d eval --instances``, ``lift3d render
+#: --instances``): ``export``, the exported cloud's objects (what instances.json lists; the default), or
+#: ``field``, the argmax of the instance head. Export by default: on eight tuning rooms its PQ^scene was 0.033
+#: higher on average (docs/benchmarks.md).
+INSTANCE_SOURCES = ("export", "field")
+
+
+def check_instance_source(value: str) -> str:
+    """``value`` if it is one of :data:`INSTANCE_SOURCES`, else a one-line :class:`InputError`."""
+    if value not in INSTANCE_SOURCES:
+        raise InputError("--instances", f"unknown instance source {value!r} ({', '.join(INSTANCE_SOURCES)})")
+    return value
 
 
 def frame_instance_ids(cameras, frame: int, semantic: np.ndarray, depth: np.ndarray, xyz: np.ndarray,

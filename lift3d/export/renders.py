@@ -21,16 +21,13 @@ from typing import Sequence
 import numpy as np
 
 from lift3d.errors import InputError
-from lift3d.export.instances import frame_instance_ids
+from lift3d.export.instances import INSTANCE_SOURCES, check_instance_source, frame_instance_ids
 from lift3d.export.pointcloud import extract_labelled_points
 from lift3d.model.run import load_run
 from lift3d.render.images import MIN_SEGMENT_FRACTION, check_min_segment_fraction, render_frame
 from lift3d.render.output import DEFAULT_OUTPUTS, RenderedOutputWriter, load_camera_path, resolve_outputs
 from lift3d.render.rays import RayGenerator
 from lift3d.utils.progress import progress_bar
-
-#: Where the instance ids of rendered thing pixels come from: the export's objects, or the field's channels.
-RENDER_INSTANCE_SOURCES = ("export", "field")
 
 
 @dataclass
@@ -60,7 +57,7 @@ def render_to_folder(
     previews: bool = True,
     progress: bool = True,
     min_segment_fraction: float = MIN_SEGMENT_FRACTION,
-    instances: str = "export",
+    instances: str = INSTANCE_SOURCES[0],
 ) -> RenderResult:
     """Render a split of the run's scene (or a camera path) into ``output_dir``.
 
@@ -104,8 +101,7 @@ def render_to_folder(
     check_min_segment_fraction(min_segment_fraction)
     if chunk_size is not None and chunk_size < 1:
         raise InputError("--chunk-size", f"must be a positive number of rays (got {chunk_size})")
-    if instances not in RENDER_INSTANCE_SOURCES:
-        raise InputError("--instances", f"unknown instance source {instances!r} ({', '.join(RENDER_INSTANCE_SOURCES)})")
+    check_instance_source(instances)
     names = resolve_outputs(outputs, previews)
     loaded = load_run(run, device)
     scene = None
