@@ -300,7 +300,6 @@ def extract_labelled_points(loaded: LoadedRun, scene: Scene, *, source: str = "s
                                                                             voxel_size)
         thresholds["voxel_size"] = float(voxel_size)
         stats["after_voxel"] = int(len(xyz))
-    t = time.perf_counter()
     scale_out = 1.0 if frame == "normalized" else 1.0 / float(loaded.norm.scale)
     # Instances link across gaps of about two grid cells, 1.5 point spacings (sparse clouds) or one voxel.
     link = max(cand["link_radius_normalized"] * scale_out, 1.5 * typical_spacing(xyz), voxel_size)
@@ -310,7 +309,7 @@ def extract_labelled_points(loaded: LoadedRun, scene: Scene, *, source: str = "s
         semantic, thresholds["stuff_orientation"] = orient_stuff_labels(xyz, semantic, scene.stuff_ids,
                                                                         radius=2.0 * link)
         timings["stuff_orientation"] = time.perf_counter() - t
-        t = time.perf_counter()
+    t = time.perf_counter()
     assignment = assign_instances(xyz, semantic, channel, link_radius=link, min_points=int(min_points))
     k = assignment.keep
     timings["instances"] = time.perf_counter() - t

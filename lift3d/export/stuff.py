@@ -178,11 +178,12 @@ def orient_stuff_labels(xyz: np.ndarray, semantic: np.ndarray, stuff_ids, radius
         # then ask the full tree only for them.
         rest = np.setdiff1d(stuff, measured, assume_unique=True)
         rest_xyz = np.asarray(xyz, np.float64)[rest]
-        spacing = np.median(cKDTree(pts).query(pts[:: max(1, len(pts) // 2000)], k=2)[0][:, 1])
+        tree = cKDTree(pts)
+        spacing = np.median(tree.query(pts[:: max(1, len(pts) // 2000)], k=2)[0][:, 1])
         d, _ = cKDTree(pts[hit]).query(rest_xyz, distance_upper_bound=4.0 * spacing, workers=-1)
         near = np.flatnonzero(np.isfinite(d))
         if len(near):
-            _, j = cKDTree(pts).query(rest_xyz[near], workers=-1)
+            _, j = tree.query(rest_xyz[near], workers=-1)
             follow = (moved_to[j] >= 0) & (own[j] == semantic[rest[near]])
             out[rest[near[follow]]] = moved_to[j[follow]]
     changed = np.flatnonzero(out != semantic)
