@@ -471,6 +471,46 @@ def test_plane_targets_give_stuff_pixels_their_depth_and_are_recorded(floor_room
     assert len(sparse) == (~plane).sum()
 
 
+def test_a_thing_one_view_labels_wall_gets_no_wall_depth_when_the_other_views_see_it(floor_room, monkeypatch):
+    # One view's segmenter calls every object wall: without the other views' vote those pixels get the depth
+    # of the wall behind the object; the views that look at that spot of the wall see the object in front.
+    from dataclasses import replace
+
+    scene = load_scene(floor_room)
+    frames = scene.split("train")
+    things = list(scene.thing_ids)
+    per_frame = {int(i): np.isin(scene.gt_labels(int(i)).semantic, things).sum() for i in frames}
+    wrong = max(per_frame, key=per_frame.get)
+    original = scene.pseudo_labels
+
+    def labels(i):
+        lab = original(i)
+        if int(i) != wrong:
+            return lab
+        thing = np.isin(scene.gt_labels(int(i)).semantic, things)
+        return replace(lab, semantic=np.where(thing, WALL, lab.semantic).astype(lab.semantic.dtype))
+
+    monkeypatch.setattr(scene, "pseudo_labels", labels)
+
+    def on_things(share):
+        t = image_depth_targets(scene, frames, ImageDepthConfig(source="planes", plane_stride=1,
+                                                                plane_label_support=share))
+        m = t.dense & (t.frame == wrong)
+        gt = scene.gt_labels(wrong).semantic[t.v[m].astype(int), t.u[m].astype(int)]
+        return int(np.isin(gt, things).sum()), int((~np.isin(gt, things)).sum()), t.info
+
+    thing_off, stuff_off, info_off = on_things(0.0)
+    thing_on, stuff_on, info_on = on_things(0.5)
+    refuted = info_on["planes"]["refuted_by_other_views"]
+    assert "refuted_by_other_views" not in info_off["planes"] and refuted > 0
+    from lift3d.train.trainer import image_depth_lines
+
+    assert f"({refuted} refuted by other views' labels)" in image_depth_lines(info_on)[0]
+    assert thing_off >= 20 and thing_on <= 0.5 * thing_off
+    # the wall and floor around the objects keep most of their targets
+    assert stuff_on >= 0.8 * stuff_off
+
+
 def test_the_ceiling_step_runs_with_or_without_the_floor_line(floor_room):
     # The ceiling plane needs walls, not the floor-line points: turning the floor line off must not turn the
     # ceiling step off with it (it used to run only inside the floor-line step).

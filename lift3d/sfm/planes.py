@@ -1010,6 +1010,86 @@ def ceiling_points(cameras, frames, labels: dict[int, np.ndarray], normal: np.nd
     return np.concatenate(out_xyz), np.concatenate(out_cls), np.concatenate(out_cam)
 
 
+def label_support(cameras, frames, labels: dict[int, np.ndarray], planes: StuffPlanes, points: np.ndarray,
+                  plane: np.ndarray, own_frame: int, tolerance: float) -> tuple[np.ndarray, np.ndarray]:
+    """How many other views' 2D labels agree that plane points are the plane's stuff.
+
+    A plane target comes from one view's label: a wardrobe that one view's segmenter calls wall gets the
+    wall's depth behind it. The other views that look at that spot of the wall see the wardrobe in front of
+    it and label it wardrobe. Each point is projected into every view of ``frames`` but ``own_frame``; a
+    view votes when the point falls inside its image, in front of it, not behind another plane (from that
+    camera the first plane met lies no nearer than the point, less ``tolerance``) and its label there is not
+    void. The vote supports the point when that label is a class the point's plane holds.
+
+    Parameters
+    ----------
+    cameras : lift3d.data.cameras.Cameras
+    frames : np.ndarray
+        The views that vote (training frames).
+    labels : dict
+        Frame index → ``[H, W]`` semantic pseudo-labels (0 = void).
+    planes : StuffPlanes
+    points : np.ndarray
+        ``[N, 3]`` points on the planes (world units).
+    plane : np.ndarray
+        ``int64 [N]`` the plane of each point.
+    own_frame : int
+        The view the points came from (does not vote).
+    tolerance : float
+        How much nearer than the point another plane may be met and still not hide it (world units).
+
+    Returns
+    -------
+    support, votes : np.ndarray
+        ``int64 [N]`` supporting views and voting views.
+
+    Examples
+    --------
+    A wall x = 2 that every view labels wall (class 1) on its left half and wardrobe (class 9) on its right:
+
+    >>> from lift3d.data.cameras import Cameras, look_at
+    >>> rng = np.random.default_rng(0)
+    >>> wall = np.c_[np.full(60, 2.0), rng.uniform(-2, 2, 60), rng.uniform(0, 3, 60)]
+    >>> planes = fit_planes(wall, np.full(60, 1), [1], threshold=0.02)
+    >>> eyes = [np.array([0.0, y, 1.5]) for y in (-0.5, 0.0, 0.5)]
+    >>> c2w = np.stack([look_at(e, e + np.array([1.0, 0, 0])) for e in eyes])
+    >>> cams = Cameras(c2w=c2w, fx=np.full(3, 50.0), fy=np.full(3, 50.0), cx=np.full(3, 50.0),
+    ...                cy=np.full(3, 50.0), width=np.full(3, 100), height=np.full(3, 100))
+    >>> sem = np.ones((100, 100), np.int64); sem[:, 50:] = 9
+    >>> pts = np.array([[2.0, 1.0, 1.5], [2.0, -1.0, 1.5]])  # left of the views, right of the views
+    >>> label_support(cams, [0, 1, 2], {i: sem for i in range(3)}, planes, pts, np.zeros(2, np.int64), 0, 0.05)
+    (array([2, 0]), array([2, 2]))
+    """
+    points = np.asarray(points, np.float64)
+    support = np.zeros(len(points), np.int64)
+    votes = np.zeros(len(points), np.int64)
+    plane = np.asarray(plane, np.int64)
+    for j in frames:
+        j = int(j)
+        if j == int(own_frame) or j not in labels:
+            continue
+        sem = labels[j]
+        h, w = sem.shape
+        uv, z = cameras.project(j, points)
+        with np.errstate(invalid="ignore"):
+            k = np.flatnonzero((z > 0) & (uv[:, 0] >= 0) & (uv[:, 0] < w) & (uv[:, 1] >= 0) & (uv[:, 1] < h))
+        if not len(k):
+            continue
+        cls = sem[uv[k, 1].astype(np.int64), uv[k, 0].astype(np.int64)]
+        k, cls = k[cls != 0], cls[cls != 0]
+        if not len(k):
+            continue
+        center = cameras.centers[j]
+        seg = points[k] - center
+        dist = np.linalg.norm(seg, axis=1)
+        t, _ = planes.first_hit(np.broadcast_to(center, seg.shape), seg / dist[:, None])
+        open_ = t >= dist - tolerance
+        k, cls = k[open_], cls[open_]
+        votes[k] += 1
+        support[k] += planes.holds(plane[k], cls)
+    return support, votes
+
+
 def label_boundary(sem: np.ndarray, upper, lower, min_rows: int = 2, same: str = "upper") -> tuple[np.ndarray, np.ndarray]:
     """Pixels where ``min_rows`` rows of ``upper`` classes sit directly on ``min_rows`` rows of ``lower`` ones.
 

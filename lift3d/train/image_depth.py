@@ -39,6 +39,8 @@ from lift3d.utils.atomic import write_bytes_atomic
 MIN_OBSERVATIONS_PER_FRAME = 10
 #: The cache of a run folder: triangulated points and plane-sweep maps computed at training start.
 CACHE_DIR = "image_depth"
+#: Fewest other views whose labels must look at a plane target before they can refute it.
+MIN_LABEL_VOTES = 2
 SOURCES = ("auto", "sparse", "dense", "planes", "none")
 
 
@@ -226,7 +228,7 @@ def _plane_rows(scene: Scene, sparse: SparsePoints, dense: DenseDepth, frames: n
     planes are fitted once more with the wall points the labels' wall-on-floor boundaries give."""
     # here, not at module level: keeps `import lift3d.train` cheap (lift3d.sfm loads OpenCV)
     from lift3d.sfm.mvs import scene_up
-    from lift3d.sfm.planes import fit_planes, floor_boundary_points, point_classes
+    from lift3d.sfm.planes import fit_planes, floor_boundary_points, label_support, point_classes
 
     empty = (np.zeros(0, np.int64),) + (np.zeros(0, np.float32),) * 4 + (np.zeros(0, bool),)
     stuff = scene.stuff_ids
@@ -314,6 +316,7 @@ def _plane_rows(scene: Scene, sparse: SparsePoints, dense: DenseDepth, frames: n
     stride = max(1, int(cfg.plane_stride))
     floor_sigma = 0.5 * cfg.plane_threshold * diag
     out = []
+    dropped = 0
     for i in targets_for:
         i = int(i)
         sem = labels[i]  # targets_for is a subset of the training frames
@@ -329,6 +332,15 @@ def _plane_rows(scene: Scene, sparse: SparsePoints, dense: DenseDepth, frames: n
         t, k = planes.first_hit(o, d)
         ok = k >= 0
         ok &= planes.holds(k, cls)
+        if cfg.plane_label_support > 0 and ok.any():
+            # a wardrobe one view labels wall would get the wall's depth: the views that see that spot of the
+            # wall label what stands in front of it
+            idx = np.flatnonzero(ok)
+            support, votes = label_support(scene.cameras, frames, labels, planes, o[idx] + t[idx, None] * d[idx],
+                                           k[idx], i, tolerance=2 * cfg.plane_threshold * diag)
+            refuted = (votes >= MIN_LABEL_VOTES) & (support < cfg.plane_label_support * votes)
+            ok[idx[refuted]] = False
+            dropped += int(refuted.sum())
         axis = scene.cameras.c2w_opencv[i][:3, 2]
         z = t[ok] * (d[ok] @ axis)
         sigma = np.maximum(planes.rms[k[ok]], floor_sigma)
@@ -339,6 +351,8 @@ def _plane_rows(scene: Scene, sparse: SparsePoints, dense: DenseDepth, frames: n
         return empty, info
     rows = tuple(np.concatenate(a) for a in zip(*out))
     info["targets"] = int(len(rows[0]))
+    if cfg.plane_label_support > 0:
+        info["refuted_by_other_views"] = dropped
     return rows, info
 
 

@@ -547,7 +547,9 @@ def image_depth_lines(info: dict | None) -> list[str]:
                      + (f" ({planes['floor_line_walls']} far walls where the views' floor lines agree)"
                         if planes.get("floor_line_walls") else "")
                      + (f" ({planes['floor_line_moved']} walls moved to where the floor lines put them)"
-                        if planes.get("floor_line_moved") else ""))
+                        if planes.get("floor_line_moved") else "")
+                     + (f" ({planes['refuted_by_other_views']} refuted by other views' labels)"
+                        if planes.get("refuted_by_other_views") else ""))
         text += f"; {info.get('seconds', 0):.0f} s)"
     return [text] + [f"  warning        {w}" for w in info.get("warnings", [])]
 
