@@ -142,6 +142,16 @@ def image_depth_targets(scene: Scene, frames: np.ndarray, cfg: ImageDepthConfig,
         dense, info["dense_from"] = _dense_maps(scene, frames, sparse, cache, progress)
         rows, info["planes"] = _plane_rows(scene, sparse, dense, frames, targets_for, cfg)
         parts.append(rows)
+        if cfg.plane_dense_things and scene.thing_ids:
+            # the planes hold stuff only: objects get the plane sweep's depths where the labels see one
+            rows = _dense_rows(scene, dense, targets_for)
+            on_thing = np.zeros(len(rows[0]), bool)
+            for i in np.unique(rows[0]):
+                k = np.flatnonzero(rows[0] == i)
+                sem = scene.pseudo_labels(int(i)).semantic
+                on_thing[k] = np.isin(sem[rows[2][k].astype(np.int64), rows[1][k].astype(np.int64)], scene.thing_ids)
+            parts.append(tuple(a[on_thing] for a in rows))
+            info["dense_on_things"] = int(on_thing.sum())
     frame, u, v, z, sigma, dense_flag = (np.concatenate(a) for a in zip(*parts))
     finite = np.isfinite(z) & np.isfinite(sigma) & (z > 0) & (sigma > 0)
     targets = DepthTargets(frame[finite], u[finite], v[finite], z[finite], sigma[finite], dense_flag[finite], info)
