@@ -97,6 +97,10 @@ def add_parser(subparsers, verb: str) -> argparse.ArgumentParser:
                    help="keep the field's stuff labels where two stuff surfaces meet (default: a stuff point that "
                         "faces the way a neighbouring stuff class faces, and not the way its own class does, takes "
                         "that class; see docs/export.md)")
+    g.add_argument("--no-view-vote", dest="view_vote", action="store_false",
+                   help="keep the field's labels everywhere (default: a point whose training views agree, in their "
+                        "2D labels, that it is a stuff class takes that class: a chair's label does not spread onto "
+                        "the floor around its legs; see docs/export.md)")
     g.add_argument("--crumb-points", type=int, default=None, metavar="N",
                    help="instances under N points fold into their neighbour (default: the points of a patch one "
                         "instance link radius on a side; 0 = keep all)")
@@ -165,6 +169,7 @@ def run(args: argparse.Namespace) -> int:
         refine_surface=args.refine_surface, min_confidence=args.min_confidence, voxel_size=args.voxel_size,
         remove_outliers=args.remove_outliers, std_ratio=args.std_ratio, obb=obb, min_points=args.min_points,
         merge_fragments=args.merge_fragments, crumb_points=args.crumb_points, orient_stuff=args.orient_stuff,
+        view_vote=args.view_vote,
         **cleanup, device=args.device,
     )
     print(format_summary(summary))

@@ -144,7 +144,8 @@ def export_run(run: str | Path, output_dir: str | Path | None = None, *, pointcl
                                          density_threshold=point_options.get("density_threshold"),
                                          refine_surface=point_options.get("refine_surface", True), frame=frame,
                                          min_points=point_options.get("min_points", 0),
-                                         orient_stuff=point_options.get("orient_stuff", True), progress=progress)
+                                         orient_stuff=point_options.get("orient_stuff", True),
+                                         view_vote=point_options.get("view_vote", True), progress=progress)
         if pts is not None:
             match_instance_ids(labelled, pts.xyz, pts.semantic, pts.instance)
         write_labelled_ply(out / "mesh.ply", labelled.vertices, rgb=labelled.rgb, semantic=labelled.semantic,

@@ -62,6 +62,7 @@ from lift3d.data.scene import Scene
 from lift3d.errors import InputError
 from lift3d.export.instances import assign_instances
 from lift3d.export.stuff import orient_stuff_labels
+from lift3d.export.views import rendered_depth, vote_point_labels
 from lift3d.field.encodings import uncontract
 from lift3d.model.normalization import SceneNormalization
 from lift3d.model.panoptic import PanopticModel
@@ -631,7 +632,8 @@ class LabelledMesh:
 
 def extract_labelled_mesh(loaded: LoadedRun, scene: Scene, *, resolution: int = 256, density_threshold: float | None = None,
                           refine_surface: bool = True, frame: str = "world", min_points: int = 0,
-                          orient_stuff: bool = True, device=None, progress: bool = False) -> LabelledMesh:
+                          orient_stuff: bool = True, view_vote: bool = True, device=None,
+                          progress: bool = False) -> LabelledMesh:
     """The density isosurface with labels queried at every vertex.
 
     Vertex colour is the colour head seen from the nearest training camera. Instances follow
@@ -655,6 +657,9 @@ def extract_labelled_mesh(loaded: LoadedRun, scene: Scene, *, resolution: int = 
     orient_stuff : bool
         Stuff vertices take the class their surface's orientation says, as the point cloud's do
         (:func:`lift3d.export.stuff.orient_stuff_labels`, over the same distance; default on).
+    view_vote : bool
+        Vertices take the stuff class the training views' 2D labels agree on, as the point cloud's do
+        (:mod:`lift3d.export.views`; default on).
     device : str, optional
         Move the model to this device first.
     """
@@ -681,14 +686,23 @@ def extract_labelled_mesh(loaded: LoadedRun, scene: Scene, *, resolution: int = 
     xyz = to_frame(surface.vertices, transform, frame)
     grid_step_out = _length_to_frame(_normalized_voxel(surface), loaded.norm, frame)
     semantic = labels.semantic
+    channel = labels.channel
     thresholds: dict[str, Any] = {}
+    if view_vote and len(xyz):
+        # As the point cloud's step (lift3d.export.views), within half of the point cloud's grid cell.
+        point_voxel_world = _normalized_voxel(surface) * surface.resolution / point_surface_resolution(model) \
+            / float(loaded.norm.scale)
+        semantic, thresholds["view_vote"] = vote_point_labels(
+            to_frame(surface.vertices, transform, "world"), semantic, scene, train_frames(scene),
+            rendered_depth(loaded, scene), abs_tolerance=0.5 * point_voxel_world, targets=scene.stuff_ids)
+        channel = np.where(np.isin(semantic, scene.stuff_ids), 0, channel)
     if orient_stuff:
         # The point cloud's distance (two link radii of its grid: four of its cells), whatever this mesh's
         # resolution, so that points and mesh label an edge alike.
         point_cell = grid_step_out * surface.resolution / point_surface_resolution(model)
         semantic, thresholds["stuff_orientation"] = orient_stuff_labels(xyz, semantic, scene.stuff_ids,
                                                                         radius=4.0 * point_cell)
-    assignment = assign_instances(xyz, semantic, labels.channel, link_radius=2.0 * grid_step_out,
+    assignment = assign_instances(xyz, semantic, channel, link_radius=2.0 * grid_step_out,
                                   min_points=min_points)
     faces = surface.faces
     keep = assignment.keep

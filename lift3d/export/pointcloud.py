@@ -55,6 +55,7 @@ from lift3d.errors import InputError
 from lift3d.export.cleanup import clean_instances
 from lift3d.export.instances import assign_instances, voxel_downsample_majority
 from lift3d.export.stuff import orient_stuff_labels
+from lift3d.export.views import rendered_depth, vote_point_labels
 from lift3d.export.mesh import (
     CameraVisibility,
     _check_frame,
@@ -182,8 +183,8 @@ def extract_labelled_points(loaded: LoadedRun, scene: Scene, *, source: str = "s
                             remove_outliers: bool = False, std_ratio: float = 2.0, obb=None, min_points: int = 0,
                             merge_fragments: bool = True, crumb_points: int | None = None,
                             min_instance_confidence: float = MIN_INSTANCE_CONFIDENCE,
-                            min_support_views: int = MIN_SUPPORT_VIEWS, orient_stuff: bool = True, device=None,
-                            progress: bool = False) -> LabelledPoints:
+                            min_support_views: int = MIN_SUPPORT_VIEWS, orient_stuff: bool = True,
+                            view_vote: bool = True, device=None, progress: bool = False) -> LabelledPoints:
     """A labelled point cloud of a trained run (see the module docstring for the sources and filters).
 
     Parameters
@@ -233,6 +234,10 @@ def extract_labelled_points(loaded: LoadedRun, scene: Scene, *, source: str = "s
         Stuff points whose surface faces the way a neighbouring stuff class faces, and not the way their own
         class does, take that class (:func:`lift3d.export.stuff.orient_stuff_labels`: ceiling is not wall
         where the two meet; default on).
+    view_vote : bool
+        Points take the class that the 2D labels of the training views seeing them agree on, where they agree
+        (:mod:`lift3d.export.views`: a chair's label no longer spreads onto the floor around its legs; views
+        without a depth map are rendered for the visibility test; default on).
     device : str, optional
         Move the model to this device first (``cpu``, ``cuda``, ``auto``).
     progress : bool
@@ -303,6 +308,17 @@ def extract_labelled_points(loaded: LoadedRun, scene: Scene, *, source: str = "s
     scale_out = 1.0 if frame == "normalized" else 1.0 / float(loaded.norm.scale)
     # Instances link across gaps of about two grid cells, 1.5 point spacings (sparse clouds) or one voxel.
     link = max(cand["link_radius_normalized"] * scale_out, 1.5 * typical_spacing(xyz), voxel_size)
+    if view_vote and len(xyz):
+        t = time.perf_counter()
+        xyz_world = xyz if frame == "world" else to_frame(xyz, transform, "world")
+        # A view sees a point within half a grid cell (plus a share of its depth) of the view's depth there.
+        # Only stuff classes are given: a thing needs an instance, which a vote cannot give. A point that leaves
+        # a thing class leaves its instance channel too.
+        semantic, thresholds["view_vote"] = vote_point_labels(
+            xyz_world, semantic, scene, train_frames(scene), rendered_depth(loaded, scene),
+            abs_tolerance=0.25 * cand["link_radius_normalized"] / float(loaded.norm.scale), targets=scene.stuff_ids)
+        channel = np.where(np.isin(semantic, scene.stuff_ids), 0, channel)
+        timings["view_vote"] = time.perf_counter() - t
     if orient_stuff:
         t = time.perf_counter()
         # Two link radii: about the width over which the label grid's cells blur an edge between two surfaces.

@@ -73,6 +73,29 @@ def pinhole_rays(c2w_opencv: np.ndarray, fx: float, fy: float, cx: float, cy: fl
     return origins, dirs, 1.0 / norm
 
 
+def render_view(model, cams, c2w_opencv: np.ndarray, i: int, ds: int,
+                min_opacity: float = TSDF_MIN_OPACITY) -> tuple[np.ndarray, np.ndarray, tuple]:
+    """Render training view ``i`` as an ideal pinhole camera at downscale ``ds``.
+
+    ``c2w_opencv`` holds the views' poses in the field's normalised frame (OpenCV axes). Returns the z-depth
+    ``float32 [h, w]`` (normalised units; 0 where the opacity is under ``min_opacity``), the colour
+    ``uint8 [h, w, 3]`` and the intrinsics ``(w, h, fx, fy, cx, cy)`` of the downscaled image, whose pixel
+    ``(c, r)`` covers pixels ``[c·ds, (c+1)·ds) × [r·ds, (r+1)·ds)`` of the full one.
+    """
+    w, h = int(cams.width[i]) // ds, int(cams.height[i]) // ds
+    fx, fy = float(cams.fx[i]) / ds, float(cams.fy[i]) / ds
+    cx, cy = float(cams.cx[i]) / ds - 0.5, float(cams.cy[i]) / ds - 0.5
+    o, d, cos = pinhole_rays(c2w_opencv[i], fx, fy, cx, cy, w, h)
+    device = next(model.parameters()).device
+    out = model.render_chunked(torch.as_tensor(np.ascontiguousarray(o), dtype=torch.float32, device=device),
+                               torch.as_tensor(d, dtype=torch.float32, device=device), with_labels=False)
+    opacity = out["opacity"].cpu().numpy()
+    z = out["depth"].cpu().numpy() / np.maximum(opacity, 1e-6) * cos
+    z = np.where(opacity >= min_opacity, z, 0.0).astype(np.float32).reshape(h, w)
+    rgb = (out["rgb"].clamp(0, 1).cpu().numpy() * 255 + 0.5).astype(np.uint8).reshape(h, w, 3)
+    return z, rgb, (w, h, fx, fy, cx, cy)
+
+
 def fuse_rendered_depth(loaded: LoadedRun, scene: Scene, *, voxel: float | None = None,
                         trunc_voxels: float = TSDF_TRUNC_VOXELS, min_opacity: float = TSDF_MIN_OPACITY,
                         max_rays: int = TSDF_MAX_RAYS, progress: bool = False) -> FusedSurface:
@@ -112,21 +135,11 @@ def fuse_rendered_depth(loaded: LoadedRun, scene: Scene, *, voxel: float | None 
         length=resolution * voxel, resolution=resolution, sdf_trunc=trunc_voxels * voxel,
         color_type=o3d.pipelines.integration.TSDFVolumeColorType.RGB8, origin=np.full((3, 1), -half))
     c2w = opengl_to_opencv(loaded.norm.c2w_normalized(cams.c2w))
-    device = next(model.parameters()).device
     fused_pixels = 0
     for i in progress_bar(frames, desc="tsdf: render and fuse", disable=not progress, unit="view"):
         i = int(i)
-        w, h = int(cams.width[i]) // ds, int(cams.height[i]) // ds
-        fx, fy = float(cams.fx[i]) / ds, float(cams.fy[i]) / ds
-        cx, cy = float(cams.cx[i]) / ds - 0.5, float(cams.cy[i]) / ds - 0.5
-        o, d, cos = pinhole_rays(c2w[i], fx, fy, cx, cy, w, h)
-        out = model.render_chunked(torch.as_tensor(np.ascontiguousarray(o), dtype=torch.float32, device=device),
-                                   torch.as_tensor(d, dtype=torch.float32, device=device), with_labels=False)
-        opacity = out["opacity"].cpu().numpy()
-        z = out["depth"].cpu().numpy() / np.maximum(opacity, 1e-6) * cos
-        z = np.where(opacity >= min_opacity, z, 0.0).astype(np.float32).reshape(h, w)
+        z, rgb, (w, h, fx, fy, cx, cy) = render_view(model, cams, c2w, i, ds, min_opacity)
         fused_pixels += int((z > 0).sum())
-        rgb = (out["rgb"].clamp(0, 1).cpu().numpy() * 255 + 0.5).astype(np.uint8).reshape(h, w, 3)
         rgbd = o3d.geometry.RGBDImage.create_from_color_and_depth(
             o3d.geometry.Image(np.ascontiguousarray(rgb)), o3d.geometry.Image(z), depth_scale=1.0,
             depth_trunc=depth_trunc, convert_rgb_to_intensity=False)
