@@ -449,8 +449,12 @@ def test_plane_targets_give_stuff_pixels_their_depth_and_are_recorded(floor_room
     targets = image_depth_targets(scene, frames, ImageDepthConfig(source="planes", plane_stride=2))
     info = targets.info["planes"]
     assert targets.info["source"] == "planes" and info["planes"] >= 2 and info["targets"] > 0
-    plane = targets.dense
-    assert plane.sum() == info["targets"] and (~plane).sum() == targets.info["observations"]
+    dense = targets.dense  # plane targets, then the plane sweep's depths on thing-labelled pixels
+    on_things = targets.info["dense_on_things"]
+    assert on_things > 0 and dense.sum() == info["targets"] + on_things
+    assert (~dense).sum() == targets.info["observations"]
+    plane = np.zeros_like(dense)
+    plane[np.flatnonzero(dense)[:info["targets"]]] = True
     err, floor = [], []
     for f in np.unique(targets.frame[plane]):
         m = plane & (targets.frame == f)
@@ -465,10 +469,15 @@ def test_plane_targets_give_stuff_pixels_their_depth_and_are_recorded(floor_room
     # The training summary says what the planes gave.
     from lift3d.train.trainer import image_depth_lines
 
-    assert f"{info['planes']} stuff planes giving {info['targets']} targets" in image_depth_lines(targets.info)[0]
-    # Sparse and plane sources differ only by the plane targets.
+    line = image_depth_lines(targets.info)[0]
+    assert f"{info['planes']} stuff planes giving {info['targets']} targets" in line
+    assert f"{on_things} plane-sweep depths on objects" in line
+    # Sparse and plane sources differ only by the plane targets (and the sweep's depths on things).
     sparse = image_depth_targets(scene, frames, ImageDepthConfig(source="sparse"))
-    assert len(sparse) == (~plane).sum()
+    assert len(sparse) == (~dense).sum()
+    planes_only = image_depth_targets(scene, frames, ImageDepthConfig(source="planes", plane_stride=2,
+                                                                      plane_dense_things=False))
+    assert "dense_on_things" not in planes_only.info and planes_only.dense.sum() == info["targets"]
 
 
 def test_a_thing_one_view_labels_wall_gets_no_wall_depth_when_the_other_views_see_it(floor_room, monkeypatch):

@@ -550,6 +550,8 @@ def image_depth_lines(info: dict | None) -> list[str]:
                         if planes.get("floor_line_moved") else "")
                      + (f" ({planes['refuted_by_other_views']} refuted by other views' labels)"
                         if planes.get("refuted_by_other_views") else ""))
+        if info.get("dense_on_things"):
+            text += f", {info['dense_on_things']} plane-sweep depths on objects"
         text += f"; {info.get('seconds', 0):.0f} s)"
     return [text] + [f"  warning        {w}" for w in info.get("warnings", [])]
 
