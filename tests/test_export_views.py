@@ -122,3 +122,27 @@ def test_a_subsample_gives_nearly_the_same_answer(room):
     changed = full != wrong
     assert changed.sum() > 100 and np.mean(part[changed] == full[changed]) > 0.85
     assert np.mean(part == full) > 0.95
+
+
+def test_auto_source_fuses_depth_only_for_streets_with_depth_in_every_training_frame(room):
+    # (here beside the vote: both decide from the scene what the export does)
+    from types import SimpleNamespace
+
+    from lift3d.export.pointcloud import resolve_point_source
+
+    def run(bounded):
+        return SimpleNamespace(model=SimpleNamespace(bounded=bounded))
+
+    assert resolve_point_source("auto", run(True), room)[0] == "surface"
+    source, why = resolve_point_source("auto", run(False), room)
+    assert source == "tsdf" and "depth map in every training frame" in why
+    first = int(room.split("train")[0])
+    original = room.frames[first].depth_path
+    try:
+        room.frames[first].depth_path = None
+        assert resolve_point_source("auto", run(False), room)[0] == "surface"
+    finally:
+        room.frames[first].depth_path = original
+    assert resolve_point_source("rays", run(False), room) == ("rays", "given")
+    with pytest.raises(ValueError, match="--source"):
+        resolve_point_source("voxels", run(True), room)

@@ -17,7 +17,8 @@ Export a trained run's labelled geometry (docs/export.md) into --output-dir, eve
 and per --format (default: ply):
 {formats}
 
-Point sources: 'surface' (default) samples the field's density isosurface where a training camera sees it
+Point sources: 'auto' (default) is 'tsdf' for a street-like unbounded scene with a depth map in every training
+frame and 'surface' otherwise. 'surface' samples the field's density isosurface where a training camera sees it
 and runs the label heads at every point; 'rays' back-projects the rendered depth of training rays with
 opacity > 0.5 (nerfstudio's way, slower). Coordinates are in the input poses' world frame unless
 --frame normalized. See docs/export.md (how to load each format in ROS 2, OctoMap, Nav2, CloudCompare, PCL).
@@ -65,9 +66,10 @@ def add_parser(subparsers, verb: str) -> argparse.ArgumentParser:
                    help="nav2: obstacles are non-floor points this high above the floor, output units (default: "
                         "0.1 1.8 world units)")
     g = p.add_argument_group("points")
-    g.add_argument("--source", default="surface", choices=("surface", "tsdf", "rays"),
-                   help="surface: sample the seen isosurface (default); tsdf: fuse the training views' rendered "
-                        "depth into a TSDF and sample its surface; rays: back-project rendered depth")
+    g.add_argument("--source", default="auto", choices=("auto", "surface", "tsdf", "rays"),
+                   help="auto (default): tsdf for an unbounded scene with a depth map in every training frame, "
+                        "surface otherwise; surface: sample the seen isosurface; tsdf: fuse the training views' "
+                        "rendered depth into a TSDF and sample its surface; rays: back-project rendered depth")
     g.add_argument("--num-points", type=int, default=1_000_000, metavar="N",
                    help="points drawn before filtering (default: 1000000)")
     g.add_argument("--frame", default="world", choices=("world", "normalized"),

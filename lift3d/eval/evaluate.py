@@ -446,7 +446,7 @@ def points3d_block(loaded: LoadedRun, scene: Scene, num_points: int = 200_000, p
     gt_sem, gt_inst = np.asarray(gt["semantic"]).astype(np.int64), np.asarray(gt["instance"]).astype(np.int64)
     on_thing = np.isin(gt_sem, list(scene.thing_ids)) & (gt_inst != 0)
     block["n_gt_objects"] = int(len(np.unique(np.stack([gt_sem[on_thing], gt_inst[on_thing]], 1), axis=0)))
-    block.update(source=f"export.{source}", num_points=int(num_points))
+    block.update(source=f"export.{pts.stats.get('source', source)}", num_points=int(num_points))
     return block
 
 

@@ -79,7 +79,7 @@ from lift3d.utils.memory import peak_rss_mb
 #: Rays source: keep rays whose accumulated opacity exceeds this (nerfstudio's rule).
 RAY_OPACITY_THRESHOLD = 0.5
 #: Point sources of :func:`extract_labelled_points`, the default first.
-SOURCES = ("surface", "tsdf", "rays")
+SOURCES = ("auto", "surface", "tsdf", "rays")
 #: Statistical outlier removal: neighbours per point (nerfstudio and Open3D's tutorial use 20).
 OUTLIER_NEIGHBOURS = 20
 #: Instances whose points' mean class probability is lower fold into their surroundings. A thing the field
@@ -177,7 +177,24 @@ class OrientedBox:
 
 
 # ------------------------------------------------------------------------------------------ main entry
-def extract_labelled_points(loaded: LoadedRun, scene: Scene, *, source: str = "surface", num_points: int = 1_000_000,
+def resolve_point_source(source: str, loaded: LoadedRun, scene: Scene) -> tuple[str, str]:
+    """The source ``auto`` stands for, and why: ``tsdf`` for an unbounded scene (a street) whose every training
+    frame has a depth map, where the fused depth scored better in 3D (docs/benchmarks.md, "Export sources":
+    F-score +0.06 on the reporting streets, +0.13 / +0.02 on two tuning streets; the isosurface reached 62–87 %
+    of their GT points); ``surface`` everywhere else (rooms, and streets from images alone, where the fused
+    rendered depth is haze). Any other source is returned as given."""
+    if source not in SOURCES:
+        raise InputError("--source", f"unknown source {source!r} ({', '.join(SOURCES)})")
+    if source != "auto":
+        return source, "given"
+    depth_everywhere = all(scene.frames[int(i)].depth_path is not None for i in train_frames(scene))
+    if not loaded.model.bounded and depth_everywhere:
+        return "tsdf", "auto: an unbounded scene with a depth map in every training frame"
+    return "surface", ("auto: a bounded scene" if loaded.model.bounded
+                       else "auto: an unbounded scene without depth maps in every training frame")
+
+
+def extract_labelled_points(loaded: LoadedRun, scene: Scene, *, source: str = "auto", num_points: int = 1_000_000,
                             frame: str = "world", density_threshold: float | None = None,
                             refine_surface: bool = True, min_confidence: float = 0.0, voxel_size: float = 0.0,
                             remove_outliers: bool = False, std_ratio: float = 2.0, obb=None, min_points: int = 0,
@@ -193,7 +210,8 @@ def extract_labelled_points(loaded: LoadedRun, scene: Scene, *, source: str = "s
         From :func:`lift3d.model.run.load_run`.
     scene : Scene
         The run's scene (``loaded.scene()``): training cameras decide visibility and ray origins.
-    source : {"surface", "tsdf", "rays"}
+    source : {"auto", "surface", "tsdf", "rays"}
+        ``auto`` (default): :func:`resolve_point_source`.
     num_points : int
         Points drawn before filtering (default one million).
     frame : {"world", "normalized"}
@@ -247,8 +265,8 @@ def extract_labelled_points(loaded: LoadedRun, scene: Scene, *, source: str = "s
     LabelledPoints
     """
     _check_frame(frame)
-    if source not in SOURCES:
-        raise InputError("--source", f"unknown source {source!r} ({', '.join(SOURCES)})")
+    requested = source
+    source, source_rule = resolve_point_source(source, loaded, scene)
     if int(num_points) < 1:
         raise InputError("--num-points", f"must be at least 1, got {num_points}")
     if voxel_size < 0 or not math.isfinite(voxel_size):
@@ -274,6 +292,8 @@ def extract_labelled_points(loaded: LoadedRun, scene: Scene, *, source: str = "s
         cand = _ray_points(loaded, scene, int(num_points), progress, timings)
     stats: dict[str, Any] = {"source": source, "drawn": int(len(cand["x"]))}
     thresholds = dict(cand["thresholds"])
+    if requested == "auto":
+        thresholds["source"] = {"source": source, "rule": source_rule}
     labels = cand["labels"]
     xyz_norm = cand["x"]
     rgb = cand["rgb"] if cand.get("rgb") is not None else labels.rgb
