@@ -110,12 +110,10 @@ def _write_ring_scene(root: Path, n_frames: int = 8) -> Path:
 def no_view_vote():
     """The ring scene's 2D labels show one stuff segment per view, which contradicts the analytic field's balls:
     the training views' vote (tested in test_export_views.py) would make them stuff. Off in this module."""
-    import lift3d.export.mesh as mesh
-    import lift3d.export.pointcloud as pointcloud
+    import lift3d.export.views as views
 
     with pytest.MonkeyPatch.context() as mp:
-        for module in (pointcloud, mesh):
-            mp.setattr(module, "vote_point_labels", lambda xyz, semantic, *a, **k: (semantic, {"changed": 0}))
+        mp.setattr(views, "vote_point_labels", lambda xyz, semantic, *a, **k: (semantic, {"changed": 0}))
         yield
 
 

@@ -98,12 +98,13 @@ def test_export_records_the_vote_for_points_and_mesh_and_can_skip_it(tiny_run, t
 def test_a_point_the_vote_moves_to_stuff_leaves_its_instance(tiny_run, monkeypatch):
     # The vote says "floor" everywhere: every thing point becomes floor and no instance is left behind on it.
     import lift3d.export.pointcloud as pointcloud
+    import lift3d.export.views as views
     from lift3d.model.run import load_run
 
     loaded = load_run(tiny_run, "cpu")
     scene = loaded.scene()
     floor = [c.id for c in scene.categories if c.name == "floor"][0]
-    monkeypatch.setattr(pointcloud, "vote_point_labels",
+    monkeypatch.setattr(views, "vote_point_labels",
                         lambda xyz, sem, *a, **k: (np.full_like(sem, floor), {"changed": int((sem != floor).sum())}))
     pts = pointcloud.extract_labelled_points(loaded, scene, num_points=4000)
     assert (pts.semantic == floor).all() and (pts.instance == 0).all()

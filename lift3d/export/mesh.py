@@ -62,7 +62,7 @@ from lift3d.data.scene import Scene
 from lift3d.errors import InputError
 from lift3d.export.instances import assign_instances
 from lift3d.export.stuff import orient_stuff_labels
-from lift3d.export.views import rendered_depth, vote_point_labels
+from lift3d.export.views import vote_stuff_labels
 from lift3d.field.encodings import uncontract
 from lift3d.model.normalization import SceneNormalization
 from lift3d.model.panoptic import PanopticModel
@@ -692,10 +692,9 @@ def extract_labelled_mesh(loaded: LoadedRun, scene: Scene, *, resolution: int = 
         # As the point cloud's step (lift3d.export.views), within half of the point cloud's grid cell.
         point_voxel_world = _normalized_voxel(surface) * surface.resolution / point_surface_resolution(model) \
             / float(loaded.norm.scale)
-        semantic, thresholds["view_vote"] = vote_point_labels(
-            to_frame(surface.vertices, transform, "world"), semantic, scene, train_frames(scene),
-            rendered_depth(loaded, scene), abs_tolerance=0.5 * point_voxel_world, targets=scene.stuff_ids)
-        channel = np.where(np.isin(semantic, scene.stuff_ids), 0, channel)
+        semantic, channel, thresholds["view_vote"] = vote_stuff_labels(
+            to_frame(surface.vertices, transform, "world"), semantic, channel, loaded, scene, train_frames(scene),
+            abs_tolerance=0.5 * point_voxel_world)
     if orient_stuff:
         # The point cloud's distance (two link radii of its grid: four of its cells), whatever this mesh's
         # resolution, so that points and mesh label an edge alike.

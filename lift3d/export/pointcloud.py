@@ -55,7 +55,7 @@ from lift3d.errors import InputError
 from lift3d.export.cleanup import clean_instances
 from lift3d.export.instances import assign_instances, voxel_downsample_majority
 from lift3d.export.stuff import orient_stuff_labels
-from lift3d.export.views import rendered_depth, vote_point_labels
+from lift3d.export.views import vote_stuff_labels
 from lift3d.export.mesh import (
     CameraVisibility,
     _check_frame,
@@ -332,12 +332,9 @@ def extract_labelled_points(loaded: LoadedRun, scene: Scene, *, source: str = "a
         t = time.perf_counter()
         xyz_world = xyz if frame == "world" else to_frame(xyz, transform, "world")
         # A view sees a point within half a grid cell (plus a share of its depth) of the view's depth there.
-        # Only stuff classes are given: a thing needs an instance, which a vote cannot give. A point that leaves
-        # a thing class leaves its instance channel too.
-        semantic, thresholds["view_vote"] = vote_point_labels(
-            xyz_world, semantic, scene, train_frames(scene), rendered_depth(loaded, scene),
-            abs_tolerance=0.25 * cand["link_radius_normalized"] / float(loaded.norm.scale), targets=scene.stuff_ids)
-        channel = np.where(np.isin(semantic, scene.stuff_ids), 0, channel)
+        semantic, channel, thresholds["view_vote"] = vote_stuff_labels(
+            xyz_world, semantic, channel, loaded, scene, train_frames(scene),
+            abs_tolerance=0.25 * cand["link_radius_normalized"] / float(loaded.norm.scale))
         timings["view_vote"] = time.perf_counter() - t
     if orient_stuff:
         t = time.perf_counter()

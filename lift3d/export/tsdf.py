@@ -25,18 +25,18 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
+import torch
 
 from lift3d.data.cameras import opengl_to_opencv
 from lift3d.data.scene import Scene
 from lift3d.export.mesh import UNBOUNDED_MAX_RADIUS, lattice_resolution, train_frames
-from lift3d.export.views import OPAQUE, render_view
 from lift3d.model.run import LoadedRun
 from lift3d.utils.progress import progress_bar
 
 #: Rays rendered over all training views (the views are downscaled to stay below this).
 TSDF_MAX_RAYS = 1_500_000
 #: Fuse only pixels whose accumulated opacity reaches this (nerfstudio's rule for its point clouds).
-TSDF_MIN_OPACITY = OPAQUE
+TSDF_MIN_OPACITY = 0.5
 #: Voxels per side of the fusion cube at most (Open3D keeps ~32 bytes per voxel: 192^3 is ~230 MB).
 TSDF_MAX_RESOLUTION = 192
 #: Truncation distance in voxels.
@@ -56,6 +56,21 @@ class FusedSurface:
     colors: np.ndarray
     voxel: float
     info: dict[str, Any] = field(default_factory=dict)
+
+
+def pinhole_rays(c2w_opencv: np.ndarray, fx: float, fy: float, cx: float, cy: float, width: int,
+                 height: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Rays through the pixel centres of an ideal pinhole camera (pixel ``(c, r)`` at ``x = (c - cx) / fx``).
+
+    Returns ``origins`` ``[H·W, 3]``, unit ``dirs`` ``[H·W, 3]`` (row-major) and ``cos`` ``[H·W]`` between each
+    ray and the optical axis (distance × cos = z-depth).
+    """
+    rr, cc = np.mgrid[0:height, 0:width].astype(np.float64)
+    d_cam = np.stack([(cc.ravel() - cx) / fx, (rr.ravel() - cy) / fy, np.ones(width * height)], -1)
+    norm = np.linalg.norm(d_cam, axis=1)
+    dirs = (d_cam / norm[:, None]) @ c2w_opencv[:3, :3].T
+    origins = np.broadcast_to(c2w_opencv[:3, 3], dirs.shape)
+    return origins, dirs, 1.0 / norm
 
 
 def fuse_rendered_depth(loaded: LoadedRun, scene: Scene, *, voxel: float | None = None,
@@ -97,11 +112,21 @@ def fuse_rendered_depth(loaded: LoadedRun, scene: Scene, *, voxel: float | None 
         length=resolution * voxel, resolution=resolution, sdf_trunc=trunc_voxels * voxel,
         color_type=o3d.pipelines.integration.TSDFVolumeColorType.RGB8, origin=np.full((3, 1), -half))
     c2w = opengl_to_opencv(loaded.norm.c2w_normalized(cams.c2w))
+    device = next(model.parameters()).device
     fused_pixels = 0
     for i in progress_bar(frames, desc="tsdf: render and fuse", disable=not progress, unit="view"):
         i = int(i)
-        z, rgb, (w, h, fx, fy, cx, cy) = render_view(model, cams, c2w, i, ds, min_opacity)
+        w, h = int(cams.width[i]) // ds, int(cams.height[i]) // ds
+        fx, fy = float(cams.fx[i]) / ds, float(cams.fy[i]) / ds
+        cx, cy = float(cams.cx[i]) / ds - 0.5, float(cams.cy[i]) / ds - 0.5
+        o, d, cos = pinhole_rays(c2w[i], fx, fy, cx, cy, w, h)
+        out = model.render_chunked(torch.as_tensor(np.ascontiguousarray(o), dtype=torch.float32, device=device),
+                                   torch.as_tensor(d, dtype=torch.float32, device=device), with_labels=False)
+        opacity = out["opacity"].cpu().numpy()
+        z = out["depth"].cpu().numpy() / np.maximum(opacity, 1e-6) * cos
+        z = np.where(opacity >= min_opacity, z, 0.0).astype(np.float32).reshape(h, w)
         fused_pixels += int((z > 0).sum())
+        rgb = (out["rgb"].clamp(0, 1).cpu().numpy() * 255 + 0.5).astype(np.uint8).reshape(h, w, 3)
         rgbd = o3d.geometry.RGBDImage.create_from_color_and_depth(
             o3d.geometry.Image(np.ascontiguousarray(rgb)), o3d.geometry.Image(z), depth_scale=1.0,
             depth_trunc=depth_trunc, convert_rgb_to_intensity=False)

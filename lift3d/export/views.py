@@ -30,15 +30,14 @@ import time
 from typing import Any, Callable
 
 import numpy as np
-import torch
 from scipy.spatial import cKDTree
 
-from lift3d.data.cameras import opengl_to_opencv
 from lift3d.data.scene import Scene
+from lift3d.render.images import render_frame
 
 #: A rendered pixel has a depth when its ray's accumulated opacity reaches this (nerfstudio's rule for its point
 #: clouds).
-OPAQUE = 0.5
+VOTE_MIN_OPACITY = 0.5
 #: Fewest views that must see and label a point before their vote can change its class.
 VOTE_MIN_VIEWS = 2
 #: Share of those votes the winning class needs.
@@ -198,52 +197,27 @@ def vote_point_labels(xyz_world: np.ndarray, semantic: np.ndarray, scene: Scene,
     return out, stats
 
 
-def pinhole_rays(c2w_opencv: np.ndarray, fx: float, fy: float, cx: float, cy: float, width: int,
-                 height: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Rays through the pixel centres of an ideal pinhole camera (pixel ``(c, r)`` at ``x = (c - cx) / fx``).
-
-    Returns ``origins`` ``[H·W, 3]``, unit ``dirs`` ``[H·W, 3]`` (row-major) and ``cos`` ``[H·W]`` between each
-    ray and the optical axis (distance × cos = z-depth).
-    """
-    rr, cc = np.mgrid[0:height, 0:width].astype(np.float64)
-    d_cam = np.stack([(cc.ravel() - cx) / fx, (rr.ravel() - cy) / fy, np.ones(width * height)], -1)
-    norm = np.linalg.norm(d_cam, axis=1)
-    dirs = (d_cam / norm[:, None]) @ c2w_opencv[:3, :3].T
-    origins = np.broadcast_to(c2w_opencv[:3, 3], dirs.shape)
-    return origins, dirs, 1.0 / norm
-
-
-def render_view(model, cams, c2w_opencv: np.ndarray, i: int, ds: int,
-                min_opacity: float = OPAQUE) -> tuple[np.ndarray, np.ndarray, tuple]:
-    """Render training view ``i`` as an ideal pinhole camera at downscale ``ds``.
-
-    ``c2w_opencv`` holds the views' poses in the field's normalised frame (OpenCV axes). Returns the z-depth
-    ``float32 [h, w]`` (normalised units; 0 where the opacity is under ``min_opacity``), the colour
-    ``uint8 [h, w, 3]`` and the intrinsics ``(w, h, fx, fy, cx, cy)`` of the downscaled image, whose pixel
-    ``(c, r)`` covers pixels ``[c·ds, (c+1)·ds) × [r·ds, (r+1)·ds)`` of the full one.
-    """
-    w, h = int(cams.width[i]) // ds, int(cams.height[i]) // ds
-    fx, fy = float(cams.fx[i]) / ds, float(cams.fy[i]) / ds
-    cx, cy = float(cams.cx[i]) / ds - 0.5, float(cams.cy[i]) / ds - 0.5
-    o, d, cos = pinhole_rays(c2w_opencv[i], fx, fy, cx, cy, w, h)
-    device = next(model.parameters()).device
-    out = model.render_chunked(torch.as_tensor(np.ascontiguousarray(o), dtype=torch.float32, device=device),
-                               torch.as_tensor(d, dtype=torch.float32, device=device), with_labels=False)
-    opacity = out["opacity"].cpu().numpy()
-    z = out["depth"].cpu().numpy() / np.maximum(opacity, 1e-6) * cos
-    z = np.where(opacity >= min_opacity, z, 0.0).astype(np.float32).reshape(h, w)
-    rgb = (out["rgb"].clamp(0, 1).cpu().numpy() * 255 + 0.5).astype(np.uint8).reshape(h, w, 3)
-    return z, rgb, (w, h, fx, fy, cx, cy)
-
-
 def rendered_depth(loaded, scene: Scene) -> Callable[[int, int], np.ndarray]:
-    """``render(i, downscale)``: the field's z-depth (world units) of training view ``i`` at that downscale,
-    0 where the ray's opacity is under one half."""
-    c2w = opengl_to_opencv(loaded.norm.c2w_normalized(scene.cameras.c2w))
+    """``render(i, downscale)``: the field's z-depth (world units) of training view ``i`` at that downscale
+    (:func:`lift3d.render.images.render_frame`, the pixels of ``downscale`` blocks' centres), 0 where the ray's
+    opacity is under :data:`VOTE_MIN_OPACITY`."""
+    rays = loaded.rays(scene)
 
     def render(i: int, ds: int) -> np.ndarray:
-        z, _, _ = render_view(loaded.model, scene.cameras, c2w, i, ds, OPAQUE)
-        return z / float(loaded.norm.scale)
+        fr = render_frame(loaded.model, rays, i, loaded.norm.scale, downscale=ds, with_labels=False)
+        return np.where(fr.opacity >= VOTE_MIN_OPACITY, fr.depth, 0.0).astype(np.float32)
 
     return render
 
+
+def vote_stuff_labels(xyz_world: np.ndarray, semantic: np.ndarray, channel: np.ndarray, loaded, scene: Scene,
+                      frames, abs_tolerance: float) -> tuple[np.ndarray, np.ndarray, dict[str, Any]]:
+    """The export step (points and mesh vertices): :func:`vote_point_labels` with the field's rendered depth
+    for views without a depth map, giving stuff classes only (a thing needs an instance, which a vote cannot
+    give); a point that leaves a thing class leaves its instance channel too.
+
+    Returns the new ``semantic`` and ``channel`` ``[N]`` and the step's record for ``metadata.json``.
+    """
+    semantic, stats = vote_point_labels(xyz_world, semantic, scene, frames, rendered_depth(loaded, scene),
+                                        abs_tolerance=abs_tolerance, targets=scene.stuff_ids)
+    return semantic, np.where(np.isin(semantic, scene.stuff_ids), 0, channel), stats

@@ -513,6 +513,3 @@ def _camera_intrinsics(cam: dict, top: dict, defaults: Cameras | None, path: Pat
     cx = w / 2 if cx is None else cx
     cy = h / 2 if cy is None else cy
     return fx, fy, cx, cy, w, h
-
-
-# --------------------------------------------------------------------------------------- the render loop
