@@ -316,6 +316,44 @@ def test_a_window_whose_sill_is_above_the_eyes_is_no_ceiling_because_its_wall_go
     assert top == pytest.approx(2.5, abs=0.05)
 
 
+def test_a_textured_ceiling_that_stereo_matched_in_one_spot_reaches_over_all_its_pixels():
+    # Stereo found the ceiling's level plane from a 1 m patch of it (a repeating grid matches in few places);
+    # the pixels the labels call ceiling elsewhere met no plane, so they got no depth target.
+    from types import SimpleNamespace
+
+    from lift3d.train.image_depth import _extend_level_ceilings
+
+    cams, labels = _labelled_box_views()
+    xyz, cls, _ = floor_boundary_points(cams, range(4), labels, UP, 0.0, [FLOOR], [WALL], step=0.1, max_height=2.5,
+                                        tolerance=0.15)
+    rng = np.random.default_rng(0)
+    floor = np.c_[rng.uniform([-2.9, -1.9], [2.9, 1.9], (3000, 2)), np.zeros(3000)]
+    patch = np.c_[rng.uniform([1.0, 0.2], [2.0, 1.2], (60, 2)), np.full(60, 2.5)]
+    table = np.c_[rng.uniform([-1.0, -0.5], [-0.4, 0.1], (60, 2)), np.full(60, 0.8)]  # below the eyes: no ceiling
+    rooms = fit_planes(np.r_[xyz, floor], np.r_[cls, np.full(3000, FLOOR)], [WALL, FLOOR], threshold=0.1,
+                       min_points=8, up=UP, margin=0.3)
+    planes = rooms.with_plane(UP, -2.5, patch, np.full(60, CEILING), 0.1).with_plane(UP, -0.8, table,
+                                                                                       np.full(60, RUG), 0.1)
+    cams, labels = _labelled_box_views(pitch_deg=-15.0)
+    labels = {k: np.where((lab == FLOOR), RUG, lab) for k, lab in labels.items()}  # never seen from above
+    eye, far = np.array([[0.2, -0.1, 1.5]]), np.array([-2.5, -1.5, 2.5])  # a corner of the ceiling, 2 m off the patch
+    ray = (far - eye) / np.linalg.norm(far - eye)
+    assert not planes.holds(planes.first_hit(eye, ray)[1], np.array([CEILING]))[0]
+    cfg = ImageDepthConfig(plane_stride=4)
+    sight = (np.zeros((0, 3)), np.zeros((0, 3)))
+    grown, count = _extend_level_ceilings(SimpleNamespace(cameras=cams), range(4), labels, planes, UP, 0.0,
+                                          [WALL, FLOOR, CEILING, RUG], cfg, 10.0, sight)
+    assert count == 1 and len(grown) == len(planes) + 1 and grown.classes[-1] == frozenset({CEILING})
+    t, k = grown.first_hit(eye, ray)
+    assert grown.holds(k, np.array([CEILING]))[0] and t[0] == pytest.approx(np.linalg.norm(far - eye), abs=1e-6)
+    # A level plane that the sight lines cross (to the ceiling above it) more often than they end on it stays as
+    # it was: a window's sill above the eyes is no ceiling.
+    through = (np.tile(eye, (200, 1)), np.c_[rng.uniform([-1.0, -0.8], [1.0, 0.6], (200, 2)), np.full(200, 2.5)])
+    crossed = rooms.with_plane(UP, -2.0, patch - [0, 0, 0.5], np.full(60, CEILING), 0.1)
+    assert _extend_level_ceilings(SimpleNamespace(cameras=cams), range(4), labels, crossed, UP, 0.0,
+                                  [WALL, FLOOR, CEILING], cfg, 10.0, through)[1] == 0
+
+
 def test_a_plane_reaches_only_a_margin_beyond_its_points():
     rng = np.random.default_rng(1)
     pts = np.c_[rng.uniform(0, 1, 50), rng.uniform(0, 1, 50), np.zeros(50)]

@@ -130,6 +130,9 @@ class ImageDepthConfig:
     """``planes``: a stuff class no plane holds (a plain ceiling has next to no points) whose pixels the 2D
     labels put directly above walls gets a level plane where those boundary rays meet the walls' planes, when
     they agree on one height above the cameras (:func:`lift3d.sfm.planes.ceiling_height`)."""
+    plane_ceiling_extend: bool = True
+    """``planes``: a level plane above the cameras that stereo found for a ceiling class reaches over every pixel
+    the 2D labels give that class (stereo matches a textured ceiling in a few spots only)."""
     plane_voxel: float = 0.01
     """``planes``: points are thinned to one per cell of this size (fraction of the diagonal) and class
     before fitting, so densely matched spots do not outvote sparsely matched walls; 0 keeps every point."""
