@@ -354,6 +354,40 @@ def test_a_textured_ceiling_that_stereo_matched_in_one_spot_reaches_over_all_its
                                   [WALL, FLOOR, CEILING], cfg, 10.0, through)[1] == 0
 
 
+def test_a_window_no_plane_holds_takes_the_depth_of_the_wall_around_it_and_sky_above_a_wall_does_not():
+    from lift3d.sfm.planes import enclosed_segments
+
+    cams, labels = _labelled_box_views()
+    xyz, cls, _ = floor_boundary_points(cams, range(4), labels, UP, 0.0, [FLOOR], [WALL], step=0.1, max_height=2.5,
+                                        tolerance=0.15)
+    floor = np.c_[np.random.default_rng(0).uniform([-2.9, -1.9], [2.9, 1.9], (3000, 2)), np.zeros(3000)]
+    planes = fit_planes(np.r_[xyz, floor], np.r_[cls, np.full(3000, FLOOR)], [WALL, FLOOR, WINDOW], threshold=0.1,
+                        min_points=8, up=UP, margin=0.3)
+    assert not any(WINDOW in c for c in planes.classes)
+    sem = labels[0].copy()  # view 0 looks along +x at the wall x = 3 (rows 0-35 are wall)
+    assert (sem[5:35, 30:66] == WALL).all()
+    sem[10:25, 35:60] = WINDOW  # inside the wall
+    r, c, t, k = enclosed_segments(cams, 0, sem, [WINDOW], planes, stride=4)
+    assert len(r) == len(np.arange(10, 25)[np.arange(10, 25) % 4 == 2]) * len(np.arange(35, 60)[np.arange(35, 60) % 4 == 2])
+    hit = cams.rays(0, c, r)[0] + t[:, None] * cams.rays(0, c, r)[1]
+    assert np.allclose(hit[:, 0], 3.0, atol=0.05) and (sem[r, c] == WINDOW).all()
+    # half its ring hidden by a chair (a thing no plane holds): not enough of it meets the wall
+    chair = sem.copy()
+    chair[8:27, 33:47] = 7
+    chair[10:25, 35:60] = WINDOW
+    assert len(enclosed_segments(cams, 0, chair, [WINDOW], planes, stride=4)[0]) == 0
+    # Sky above a building's face: the ring (the face just below) meets the face's plane, but the sky's rays meet
+    # it above the face's points, out of its hull. Here the "face" is the wall with points up to 1.5 m only.
+    o, d = cams.rays(0, *np.mgrid[0:96, 0:96][::-1].reshape(2, -1))
+    z = (o[:, 2] + (3.0 - o[:, 0]) / d[:, 0] * d[:, 2]).reshape(96, 96)
+    sky = np.where((labels[0] == CEILING) | ((labels[0] == WALL) & (z > 1.6)), WINDOW, labels[0])
+    low = xyz[:, 2] < 1.5
+    face = fit_planes(np.r_[xyz[low], floor], np.r_[cls[low], np.full(3000, FLOOR)], [WALL, FLOOR, WINDOW],
+                      threshold=0.1, min_points=8, up=UP, margin=0.3)
+    assert len(enclosed_segments(cams, 0, sky, [WINDOW], face, stride=4)[0]) == 0
+    assert len(enclosed_segments(cams, 0, sky, [WINDOW], planes, stride=4)[0]) > 20  # the wall up to 2.5 m
+
+
 def test_a_plane_reaches_only_a_margin_beyond_its_points():
     rng = np.random.default_rng(1)
     pts = np.c_[rng.uniform(0, 1, 50), rng.uniform(0, 1, 50), np.zeros(50)]
@@ -576,6 +610,12 @@ def test_the_ceiling_step_runs_with_or_without_the_floor_line(floor_room):
     no_far = image_depth_targets(scene, frames, ImageDepthConfig(source="planes", plane_stride=2,
                                                                  plane_floor_line_walls=False)).info["planes"]
     assert "floor_line_walls" not in no_far
+    # so are the textured-ceiling and enclosed-segment steps, each with its switch
+    assert "ceiling_extended" in no_far and "enclosed" in no_far
+    neither = image_depth_targets(scene, frames, ImageDepthConfig(source="planes", plane_stride=2,
+                                                                  plane_ceiling_extend=False,
+                                                                  plane_enclosed=False)).info["planes"]
+    assert "ceiling_extended" not in neither and "enclosed" not in neither
 
 
 def test_label_boundary_finds_where_rows_of_one_class_sit_on_another():

@@ -133,6 +133,10 @@ class ImageDepthConfig:
     plane_ceiling_extend: bool = True
     """``planes``: a level plane above the cameras that stereo found for a ceiling class reaches over every pixel
     the 2D labels give that class (stereo matches a textured ceiling in a few spots only)."""
+    plane_enclosed: bool = True
+    """``planes``: the segments of a stuff class no plane holds (a window whose pattern stereo matched wrongly)
+    that one plane surrounds in a view (most of their one-pixel ring meets it) take that plane's depth
+    (:func:`lift3d.sfm.planes.enclosed_segments`)."""
     plane_voxel: float = 0.01
     """``planes``: points are thinned to one per cell of this size (fraction of the diagonal) and class
     before fitting, so densely matched spots do not outvote sparsely matched walls; 0 keeps every point."""

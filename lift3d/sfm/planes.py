@@ -1010,6 +1010,100 @@ def ceiling_points(cameras, frames, labels: dict[int, np.ndarray], normal: np.nd
     return np.concatenate(out_xyz), np.concatenate(out_cls), np.concatenate(out_cam)
 
 
+def enclosed_segments(cameras, i: int, sem: np.ndarray, classes, planes: StuffPlanes, stride: int = 4,
+                      min_share: float = 0.6, min_ring: int = 8) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Pixels of segments that one plane surrounds in view ``i``, on that plane: a window in a wall.
+
+    A stuff class no plane holds (a window with a repeating pattern, which stereo matches wrongly, so no plane
+    gathers half its points) gets no depth target, though its segment sits inside a wall whose pixels have one.
+    Each connected segment of ``classes`` in ``sem`` is looked at on its own: the pixels just around it (its
+    one-pixel ring, void left out) cast their rays at the planes, and when ``min_share`` of the ring meets one
+    plane that holds the ring pixel's class, the segment's pixels (every ``stride``-th row and column) take
+    the depth where their rays meet that plane, inside the hull of its points (no margin): sky above the
+    top of a building's face is not in that face's hull.
+
+    Parameters
+    ----------
+    cameras : lift3d.data.cameras.Cameras
+    i : int
+        The view.
+    sem : np.ndarray
+        ``[H, W]`` its semantic labels (0 = void).
+    classes : iterable of int
+        Classes whose segments may be enclosed (stuff that no plane holds).
+    planes : StuffPlanes
+    stride : int
+        Pixels of the segments kept: rows and columns ``stride // 2 + k · stride`` (as the plane targets).
+    min_share : float
+        Share of the ring that must meet the one plane.
+    min_ring : int
+        Fewest ring pixels (a smaller segment is noise).
+
+    Returns
+    -------
+    rows, cols : np.ndarray
+        ``int64 [N]`` pixels.
+    t : np.ndarray
+        ``[N]`` distance along each pixel's unit ray to the plane.
+    plane : np.ndarray
+        ``int64 [N]`` the plane.
+
+    Examples
+    --------
+    A window (class 5) in the middle of a wall x = 3 (class 1) that a view from the origin looks at:
+
+    >>> from lift3d.data.cameras import Cameras, look_at
+    >>> wall = np.c_[np.full(40, 3.0), np.random.default_rng(0).uniform(-2, 2, (40, 2))]
+    >>> planes = fit_planes(wall, np.ones(40, int), [1], threshold=0.02)
+    >>> cams = Cameras(look_at(np.zeros(3), np.array([1.0, 0, 0]))[None], fx=40.0, fy=40.0, cx=32.0, cy=32.0,
+    ...                width=64, height=64)
+    >>> sem = np.ones((64, 64), np.int64); sem[24:40, 24:40] = 5
+    >>> r, c, t, k = enclosed_segments(cams, 0, sem, [5], planes, stride=4)
+    >>> len(r), k.tolist() == [0] * len(r), bool(np.allclose(cams.rays(0, c, r)[1][:, 0] * t, 3.0))
+    (16, True, True)
+    """
+    from scipy import ndimage
+
+    sem = np.asarray(sem)
+    empty = np.zeros(0, np.int64)
+    out = []
+    for cl in sorted(int(c) for c in classes):
+        segments, n = ndimage.label(sem == cl)
+        if n == 0:
+            continue
+        owner = ndimage.grey_dilation(segments, size=(3, 3))
+        rr, cc = np.nonzero((owner > 0) & (segments == 0) & (sem > 0))
+        if not len(rr):
+            continue
+        o, d = cameras.rays(i, cc, rr)
+        _, hit = planes.first_hit(o, d)
+        hit = np.where(planes.holds(hit, sem[rr, cc].astype(np.int64)), hit, -1)
+        ring_owner = owner[rr, cc]
+        ring_size = np.bincount(ring_owner, minlength=n + 1)
+        for j in np.flatnonzero(ring_size >= min_ring):
+            k = hit[(ring_owner == j) & (hit >= 0)]
+            if not len(k):
+                continue
+            host = int(np.bincount(k).argmax())
+            if (k == host).sum() < min_share * ring_size[j]:
+                continue
+            pr, pc = np.nonzero(segments[stride // 2::stride, stride // 2::stride] == j)
+            pr, pc = pr * stride + stride // 2, pc * stride + stride // 2
+            if not len(pr):
+                continue
+            po, pd = cameras.rays(i, pc, pr)
+            t, cos = ray_plane_distance(po, pd, planes.normal[host], planes.offset[host])
+            with np.errstate(invalid="ignore"):
+                ok = np.isfinite(t) & (t > 0) & (np.abs(cos) >= 0.1)
+            _, beyond = _beyond_hull(po[ok] + t[ok, None] * pd[ok], planes.origin[host], planes.basis[host],
+                                     planes.hull[host])
+            ok[ok] = beyond <= 0
+            out.append((pr[ok], pc[ok], t[ok], np.full(int(ok.sum()), host, np.int64)))
+    if not out:
+        return empty, empty, np.zeros(0), empty
+    return tuple(np.concatenate(a) for a in zip(*out))
+
+
 def label_support(cameras, frames, labels: dict[int, np.ndarray], planes: StuffPlanes, points: np.ndarray,
                   plane: np.ndarray, own_frame: int, tolerance: float) -> tuple[np.ndarray, np.ndarray]:
     """How many other views' 2D labels agree that plane points are the plane's stuff.

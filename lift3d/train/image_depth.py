@@ -238,7 +238,7 @@ def _plane_rows(scene: Scene, sparse: SparsePoints, dense: DenseDepth, frames: n
     planes are fitted once more with the wall points the labels' wall-on-floor boundaries give."""
     # here, not at module level: keeps `import lift3d.train` cheap (lift3d.sfm loads OpenCV)
     from lift3d.sfm.mvs import scene_up
-    from lift3d.sfm.planes import fit_planes, floor_boundary_points, label_support, point_classes
+    from lift3d.sfm.planes import enclosed_segments, fit_planes, floor_boundary_points, label_support, point_classes
 
     empty = (np.zeros(0, np.int64),) + (np.zeros(0, np.float32),) * 4 + (np.zeros(0, bool),)
     stuff = scene.stuff_ids
@@ -326,7 +326,8 @@ def _plane_rows(scene: Scene, sparse: SparsePoints, dense: DenseDepth, frames: n
     stride = max(1, int(cfg.plane_stride))
     floor_sigma = 0.5 * cfg.plane_threshold * diag
     out = []
-    dropped = 0
+    dropped = enclosed = 0
+    unheld = sorted(set(stuff) - set().union(*planes.classes)) if cfg.plane_enclosed else []
     for i in targets_for:
         i = int(i)
         sem = labels[i]  # targets_for is a subset of the training frames
@@ -352,10 +353,18 @@ def _plane_rows(scene: Scene, sparse: SparsePoints, dense: DenseDepth, frames: n
             ok[idx[refuted]] = False
             dropped += int(refuted.sum())
         axis = scene.cameras.c2w_opencv[i][:3, 2]
-        z = t[ok] * (d[ok] @ axis)
-        sigma = np.maximum(planes.rms[k[ok]], floor_sigma)
-        n = int(ok.sum())
-        out.append((np.full(n, i, np.int64), c[ok].astype(np.float32), r[ok].astype(np.float32),
+        r, c, k, t, d = r[ok], c[ok], k[ok], t[ok], d[ok]
+        if unheld:
+            # a window no plane holds, inside a wall: the wall's depth (lift3d.sfm.planes.enclosed_segments)
+            er, ec, et, ek = enclosed_segments(scene.cameras, i, sem, unheld, planes, stride)
+            if len(er):
+                r, c, t, k = np.r_[r, er], np.r_[c, ec], np.r_[t, et], np.r_[k, ek]
+                d = np.r_[d, scene.cameras.rays(i, ec, er)[1]]
+                enclosed += len(er)
+        z = t * (d @ axis)
+        sigma = np.maximum(planes.rms[k], floor_sigma)
+        n = len(r)
+        out.append((np.full(n, i, np.int64), c.astype(np.float32), r.astype(np.float32),
                     z.astype(np.float32), sigma.astype(np.float32), np.ones(n, bool)))
     if not out:
         return empty, info
@@ -363,6 +372,8 @@ def _plane_rows(scene: Scene, sparse: SparsePoints, dense: DenseDepth, frames: n
     info["targets"] = int(len(rows[0]))
     if cfg.plane_label_support > 0:
         info["refuted_by_other_views"] = dropped
+    if cfg.plane_enclosed:
+        info["enclosed"] = enclosed
     return rows, info
 
 

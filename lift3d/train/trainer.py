@@ -549,7 +549,10 @@ def image_depth_lines(info: dict | None) -> list[str]:
                      + (f" ({planes['floor_line_moved']} walls moved to where the floor lines put them)"
                         if planes.get("floor_line_moved") else "")
                      + (f" ({planes['refuted_by_other_views']} refuted by other views' labels)"
-                        if planes.get("refuted_by_other_views") else ""))
+                        if planes.get("refuted_by_other_views") else "")
+                     + (f" ({planes['ceiling_extended']} textured ceilings grown over their pixels)"
+                        if planes.get("ceiling_extended") else "")
+                     + (f" ({planes['enclosed']} on segments a plane surrounds)" if planes.get("enclosed") else ""))
         if info.get("dense_on_things"):
             text += f", {info['dense_on_things']} plane-sweep depths on objects"
         text += f"; {info.get('seconds', 0):.0f} s)"
