@@ -259,14 +259,21 @@ def test_a_wall_where_the_floor_lines_put_it_stays_and_one_no_other_wall_calibra
     assert count == 0 and np.array_equal(fixed.offset, alone.offset)
 
 
-CEILING, WINDOW = 3, 5
-
-
-def test_a_plain_ceiling_gets_its_plane_from_where_the_labels_put_it_on_the_walls():
+def _box_room_walls():
+    """Wall points the labels' floor line gives in the views of :func:`_labelled_box_views` (``xyz``, ``cls``)
+    and 3000 floor points of that room."""
     cams, labels = _labelled_box_views()
     xyz, cls, _ = floor_boundary_points(cams, range(4), labels, UP, 0.0, [FLOOR], [WALL], step=0.1, max_height=2.5,
                                         tolerance=0.15)
     floor = np.c_[np.random.default_rng(0).uniform([-2.9, -1.9], [2.9, 1.9], (3000, 2)), np.zeros(3000)]
+    return xyz, cls, floor
+
+
+CEILING, WINDOW = 3, 5
+
+
+def test_a_plain_ceiling_gets_its_plane_from_where_the_labels_put_it_on_the_walls():
+    xyz, cls, floor = _box_room_walls()
     planes = fit_planes(np.r_[xyz, floor], np.r_[cls, np.full(3000, FLOOR)], [WALL, FLOOR, CEILING], threshold=0.1,
                         min_points=8, up=UP, margin=0.3)
     # views that look up a little see the ceiling meet the walls
@@ -294,10 +301,7 @@ def test_a_plain_ceiling_gets_its_plane_from_where_the_labels_put_it_on_the_wall
 def test_a_window_whose_sill_is_above_the_eyes_is_no_ceiling_because_its_wall_goes_on_above_it():
     # Windows from 1.7 to 2.2 m in every wall, cameras at 1.5 m: the sill is above the eyes, a level plane there
     # would cut the room in two. Above the sill there is the window's lintel, wall: a ceiling has none above it.
-    cams, labels = _labelled_box_views()
-    xyz, cls, _ = floor_boundary_points(cams, range(4), labels, UP, 0.0, [FLOOR], [WALL], step=0.1, max_height=2.5,
-                                        tolerance=0.15)
-    floor = np.c_[np.random.default_rng(0).uniform([-2.9, -1.9], [2.9, 1.9], (3000, 2)), np.zeros(3000)]
+    xyz, cls, floor = _box_room_walls()
     planes = fit_planes(np.r_[xyz, floor], np.r_[cls, np.full(3000, FLOOR)], [WALL, FLOOR, CEILING, WINDOW],
                         threshold=0.1, min_points=8, up=UP, margin=0.3)
     cams, labels = _labelled_box_views(pitch_deg=-15.0)
@@ -323,11 +327,8 @@ def test_a_textured_ceiling_that_stereo_matched_in_one_spot_reaches_over_all_its
 
     from lift3d.train.image_depth import _extend_level_ceilings
 
-    cams, labels = _labelled_box_views()
-    xyz, cls, _ = floor_boundary_points(cams, range(4), labels, UP, 0.0, [FLOOR], [WALL], step=0.1, max_height=2.5,
-                                        tolerance=0.15)
-    rng = np.random.default_rng(0)
-    floor = np.c_[rng.uniform([-2.9, -1.9], [2.9, 1.9], (3000, 2)), np.zeros(3000)]
+    xyz, cls, floor = _box_room_walls()
+    rng = np.random.default_rng(1)
     patch = np.c_[rng.uniform([1.0, 0.2], [2.0, 1.2], (60, 2)), np.full(60, 2.5)]
     table = np.c_[rng.uniform([-1.0, -0.5], [-0.4, 0.1], (60, 2)), np.full(60, 0.8)]  # below the eyes: no ceiling
     rooms = fit_planes(np.r_[xyz, floor], np.r_[cls, np.full(3000, FLOOR)], [WALL, FLOOR], threshold=0.1,
@@ -358,9 +359,7 @@ def test_a_window_no_plane_holds_takes_the_depth_of_the_wall_around_it_and_sky_a
     from lift3d.sfm.planes import enclosed_segments
 
     cams, labels = _labelled_box_views()
-    xyz, cls, _ = floor_boundary_points(cams, range(4), labels, UP, 0.0, [FLOOR], [WALL], step=0.1, max_height=2.5,
-                                        tolerance=0.15)
-    floor = np.c_[np.random.default_rng(0).uniform([-2.9, -1.9], [2.9, 1.9], (3000, 2)), np.zeros(3000)]
+    xyz, cls, floor = _box_room_walls()
     planes = fit_planes(np.r_[xyz, floor], np.r_[cls, np.full(3000, FLOOR)], [WALL, FLOOR, WINDOW], threshold=0.1,
                         min_points=8, up=UP, margin=0.3)
     assert not any(WINDOW in c for c in planes.classes)
