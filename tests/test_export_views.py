@@ -95,6 +95,34 @@ def test_export_records_the_vote_for_points_and_mesh_and_can_skip_it(tiny_run, t
     assert "view_vote" not in off["points"] and "view_vote" not in off["mesh"]
 
 
+def test_an_export_of_points_and_mesh_renders_each_view_once_for_the_vote(tiny_run, tmp_path, monkeypatch):
+    # Without depth maps the vote renders the training views; points and mesh share those renders.
+    import lift3d.export.views as views
+    from lift3d.export import export_run
+    from lift3d.model.run import load_run
+
+    loaded = load_run(tiny_run, "cpu")
+    scene = loaded.scene()
+    for frame in scene.frames:
+        monkeypatch.setattr(frame, "depth_path", None)
+    assert scene.depth(0) is None
+    rendered = []
+    render_frame = views.render_frame
+
+    def counting(model, rays, i, *a, **k):
+        rendered.append(int(i))
+        return render_frame(model, rays, i, *a, **k)
+
+    monkeypatch.setattr(views, "render_frame", counting)
+    summary = export_run(tiny_run, tmp_path / "both", pointcloud=True, mesh=True, resolution=32, num_points=4000,
+                         loaded=loaded, scene=scene)
+    frames = sorted(int(i) for i in scene.split("train"))
+    assert sorted(rendered) == frames  # once each, not once for the points and again for the mesh
+    meta = json.loads((tmp_path / "both" / "metadata.json").read_text())["thresholds"]
+    assert meta["points"]["view_vote"]["rendered"] == meta["mesh"]["view_vote"]["rendered"] == len(frames)
+    assert "mesh.ply" in summary["files"]
+
+
 def test_a_point_the_vote_moves_to_stuff_leaves_its_instance(tiny_run, monkeypatch):
     # The vote says "floor" everywhere: every thing point becomes floor and no instance is left behind on it.
     import lift3d.export.pointcloud as pointcloud

@@ -135,8 +135,9 @@ def export_run(run: str | Path, output_dir: str | Path | None = None, *, pointcl
     thresholds: dict[str, Any] = {}
     comments = [f"lift3d {__version__} export", f"frame {frame}", f"source run {loaded.run.path}"]
     pts = labelled = None
+    view_depths: dict = {}  # the vote's renders of views without depth maps, done once for points and mesh
     if pointcloud:
-        pts = extract_labelled_points(loaded, scene, progress=progress, **point_options)
+        pts = extract_labelled_points(loaded, scene, progress=progress, view_depth_cache=view_depths, **point_options)
         thresholds["points"] = pts.thresholds
         summary.update(points=len(pts), point_stats=pts.stats)
     if mesh:
@@ -145,7 +146,8 @@ def export_run(run: str | Path, output_dir: str | Path | None = None, *, pointcl
                                          refine_surface=point_options.get("refine_surface", True), frame=frame,
                                          min_points=point_options.get("min_points", 0),
                                          orient_stuff=point_options.get("orient_stuff", True),
-                                         view_vote=point_options.get("view_vote", True), progress=progress)
+                                         view_vote=point_options.get("view_vote", True),
+                                         view_depth_cache=view_depths, progress=progress)
         if pts is not None:
             match_instance_ids(labelled, pts.xyz, pts.semantic, pts.instance)
         write_labelled_ply(out / "mesh.ply", labelled.vertices, rgb=labelled.rgb, semantic=labelled.semantic,

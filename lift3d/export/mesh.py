@@ -632,8 +632,8 @@ class LabelledMesh:
 
 def extract_labelled_mesh(loaded: LoadedRun, scene: Scene, *, resolution: int = 256, density_threshold: float | None = None,
                           refine_surface: bool = True, frame: str = "world", min_points: int = 0,
-                          orient_stuff: bool = True, view_vote: bool = True, device=None,
-                          progress: bool = False) -> LabelledMesh:
+                          orient_stuff: bool = True, view_vote: bool = True, view_depth_cache: dict | None = None,
+                          device=None, progress: bool = False) -> LabelledMesh:
     """The density isosurface with labels queried at every vertex.
 
     Vertex colour is the colour head seen from the nearest training camera. Instances follow
@@ -660,6 +660,8 @@ def extract_labelled_mesh(loaded: LoadedRun, scene: Scene, *, resolution: int = 
     view_vote : bool
         Vertices take the stuff class the training views' 2D labels agree on, as the point cloud's do
         (:mod:`lift3d.export.views`; default on).
+    view_depth_cache : dict, optional
+        The renders of that step, shared with the point cloud's (:func:`lift3d.export.views.rendered_depth`).
     device : str, optional
         Move the model to this device first.
     """
@@ -694,7 +696,7 @@ def extract_labelled_mesh(loaded: LoadedRun, scene: Scene, *, resolution: int = 
             / float(loaded.norm.scale)
         semantic, channel, thresholds["view_vote"] = vote_stuff_labels(
             to_frame(surface.vertices, transform, "world"), semantic, channel, loaded, scene, train_frames(scene),
-            abs_tolerance=0.5 * point_voxel_world)
+            abs_tolerance=0.5 * point_voxel_world, depth_cache=view_depth_cache)
     if orient_stuff:
         # The point cloud's distance (two link radii of its grid: four of its cells), whatever this mesh's
         # resolution, so that points and mesh label an edge alike.

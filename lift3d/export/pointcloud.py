@@ -201,7 +201,8 @@ def extract_labelled_points(loaded: LoadedRun, scene: Scene, *, source: str = "a
                             merge_fragments: bool = True, crumb_points: int | None = None,
                             min_instance_confidence: float = MIN_INSTANCE_CONFIDENCE,
                             min_support_views: int = MIN_SUPPORT_VIEWS, orient_stuff: bool = True,
-                            view_vote: bool = True, device=None, progress: bool = False) -> LabelledPoints:
+                            view_vote: bool = True, view_depth_cache: dict | None = None, device=None,
+                            progress: bool = False) -> LabelledPoints:
     """A labelled point cloud of a trained run (see the module docstring for the sources and filters).
 
     Parameters
@@ -256,6 +257,9 @@ def extract_labelled_points(loaded: LoadedRun, scene: Scene, *, source: str = "a
         Points take the class that the 2D labels of the training views seeing them agree on, where they agree
         (:mod:`lift3d.export.views`: a chair's label no longer spreads onto the floor around its legs; views
         without a depth map are rendered for the visibility test; default on).
+    view_depth_cache : dict, optional
+        Those renders are kept in it and reused (:func:`lift3d.export.views.rendered_depth`): pass the same
+        dict to :func:`lift3d.export.mesh.extract_labelled_mesh` of the same run and scene.
     device : str, optional
         Move the model to this device first (``cpu``, ``cuda``, ``auto``).
     progress : bool
@@ -334,7 +338,8 @@ def extract_labelled_points(loaded: LoadedRun, scene: Scene, *, source: str = "a
         # A view sees a point within half a grid cell (plus a share of its depth) of the view's depth there.
         semantic, channel, thresholds["view_vote"] = vote_stuff_labels(
             xyz_world, semantic, channel, loaded, scene, train_frames(scene),
-            abs_tolerance=0.25 * cand["link_radius_normalized"] / float(loaded.norm.scale))
+            abs_tolerance=0.25 * cand["link_radius_normalized"] / float(loaded.norm.scale),
+            depth_cache=view_depth_cache)
         timings["view_vote"] = time.perf_counter() - t
     if orient_stuff:
         t = time.perf_counter()

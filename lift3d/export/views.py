@@ -197,27 +197,38 @@ def vote_point_labels(xyz_world: np.ndarray, semantic: np.ndarray, scene: Scene,
     return out, stats
 
 
-def rendered_depth(loaded, scene: Scene) -> Callable[[int, int], np.ndarray]:
+def rendered_depth(loaded, scene: Scene, cache: dict | None = None) -> Callable[[int, int], np.ndarray]:
     """``render(i, downscale)``: the field's z-depth (world units) of training view ``i`` at that downscale
     (:func:`lift3d.render.images.render_frame`, the pixels of ``downscale`` blocks' centres), 0 where the ray's
-    opacity is under :data:`VOTE_MIN_OPACITY`."""
+    opacity is under :data:`VOTE_MIN_OPACITY`.
+
+    ``cache``: a dict the caller keeps for one loaded run and scene; renders are stored in it by (view,
+    downscale) and reused, so an export of points and mesh renders each view once."""
     rays = loaded.rays(scene)
 
     def render(i: int, ds: int) -> np.ndarray:
+        key = (int(i), int(ds))
+        if cache is not None and key in cache:
+            return cache[key]
         fr = render_frame(loaded.model, rays, i, loaded.norm.scale, downscale=ds, with_labels=False)
-        return np.where(fr.opacity >= VOTE_MIN_OPACITY, fr.depth, 0.0).astype(np.float32)
+        depth = np.where(fr.opacity >= VOTE_MIN_OPACITY, fr.depth, 0.0).astype(np.float32)
+        if cache is not None:
+            cache[key] = depth
+        return depth
 
     return render
 
 
 def vote_stuff_labels(xyz_world: np.ndarray, semantic: np.ndarray, channel: np.ndarray, loaded, scene: Scene,
-                      frames, abs_tolerance: float) -> tuple[np.ndarray, np.ndarray, dict[str, Any]]:
+                      frames, abs_tolerance: float, depth_cache: dict | None = None
+                      ) -> tuple[np.ndarray, np.ndarray, dict[str, Any]]:
     """The export step (points and mesh vertices): :func:`vote_point_labels` with the field's rendered depth
     for views without a depth map, giving stuff classes only (a thing needs an instance, which a vote cannot
     give); a point that leaves a thing class leaves its instance channel too.
 
-    Returns the new ``semantic`` and ``channel`` ``[N]`` and the step's record for ``metadata.json``.
+    ``depth_cache``: see :func:`rendered_depth`. Returns the new ``semantic`` and ``channel`` ``[N]`` and the
+    step's record for ``metadata.json``.
     """
-    semantic, stats = vote_point_labels(xyz_world, semantic, scene, frames, rendered_depth(loaded, scene),
+    semantic, stats = vote_point_labels(xyz_world, semantic, scene, frames, rendered_depth(loaded, scene, depth_cache),
                                         abs_tolerance=abs_tolerance, targets=scene.stuff_ids)
     return semantic, np.where(np.isin(semantic, scene.stuff_ids), 0, channel), stats
