@@ -140,7 +140,8 @@ def image_depth_targets(scene: Scene, frames: np.ndarray, cfg: ImageDepthConfig,
         parts.append(rows)
     if source == "planes":
         dense, info["dense_from"] = _dense_maps(scene, frames, sparse, cache, progress)
-        rows, info["planes"] = _plane_rows(scene, sparse, dense, frames, targets_for, cfg)
+        labels = {int(i): scene.pseudo_labels(int(i)).semantic for i in frames}  # read once for both steps
+        rows, info["planes"] = _plane_rows(scene, sparse, dense, frames, targets_for, labels, cfg)
         parts.append(rows)
         if cfg.plane_dense_things and scene.thing_ids:
             # the planes hold stuff only: objects get the plane sweep's depths where the labels see one
@@ -148,7 +149,7 @@ def image_depth_targets(scene: Scene, frames: np.ndarray, cfg: ImageDepthConfig,
             on_thing = np.zeros(len(rows[0]), bool)
             for i in np.unique(rows[0]):
                 k = np.flatnonzero(rows[0] == i)
-                sem = scene.pseudo_labels(int(i)).semantic
+                sem = labels[int(i)]  # targets_for is a subset of the training frames
                 on_thing[k] = np.isin(sem[rows[2][k].astype(np.int64), rows[1][k].astype(np.int64)], scene.thing_ids)
             parts.append(tuple(a[on_thing] for a in rows))
             info["dense_on_things"] = int(on_thing.sum())
@@ -227,7 +228,7 @@ def scene_diagonal(scene: Scene, sparse: SparsePoints | None = None) -> float:
 
 
 def _plane_rows(scene: Scene, sparse: SparsePoints, dense: DenseDepth, frames: np.ndarray, targets_for: np.ndarray,
-                cfg: ImageDepthConfig):
+                labels: dict[int, np.ndarray], cfg: ImageDepthConfig):
     """Targets where the rays of stuff-labelled pixels first meet a plane holding their class.
 
     The planes are fitted to the sparse points (each with its observations' majority class) and the
@@ -235,7 +236,8 @@ def _plane_rows(scene: Scene, sparse: SparsePoints, dense: DenseDepth, frames: n
     percent dense coverage (docs/sfm.md). Points are thinned to one per ``plane_voxel`` cell and class, so a
     textured corner that the plane sweep covers densely does not outvote a wall; every observation is a
     sight line for :func:`lift3d.sfm.planes.fit_planes`' free-space test. With ``plane_floor_boundary``, the
-    planes are fitted once more with the wall points the labels' wall-on-floor boundaries give."""
+    planes are fitted once more with the wall points the labels' wall-on-floor boundaries give. ``labels``: frame
+    → semantic pseudo-labels of every frame of ``frames``."""
     # here, not at module level: keeps `import lift3d.train` cheap (lift3d.sfm loads OpenCV)
     from lift3d.sfm.mvs import scene_up
     from lift3d.sfm.planes import enclosed_segments, fit_planes, floor_boundary_points, label_support, point_classes
@@ -246,7 +248,6 @@ def _plane_rows(scene: Scene, sparse: SparsePoints, dense: DenseDepth, frames: n
     if not stuff:
         return empty, info
     diag = scene_diagonal(scene, sparse)
-    labels = {int(i): scene.pseudo_labels(int(i)).semantic for i in frames}
     obs_class = np.zeros(len(sparse.obs_frame), np.int64)
     for i, sem in labels.items():
         k = np.flatnonzero(sparse.obs_frame == i)
@@ -461,7 +462,7 @@ def _ceiling_plane(scene: Scene, frames, labels, planes, up, stuff, cfg: ImageDe
     """The planes and, when the labels' ceiling-on-wall boundaries and the walls found give the ceiling's height,
     a horizontal ceiling plane there over the points where the ceiling pixels' rays meet it (docs/sfm.md)."""
     # here, not at module level: keeps `import lift3d.train` cheap (lift3d.sfm loads OpenCV)
-    from lift3d.sfm.planes import ceiling_height, ceiling_points, contradicted
+    from lift3d.sfm.planes import ceiling_height
 
     floor = _floor_plane(planes, up)
     if floor is None:
@@ -478,23 +479,45 @@ def _ceiling_plane(scene: Scene, frames, labels, planes, up, stuff, cfg: ImageDe
                                                                    diag, sightlines)
         vertical = planes.vertical(n)
     for c in [c for c in stuff if not any(c in k for k, v in zip(planes.classes, vertical) if not v)
-              and 2 * sum(c in k for k, v in zip(planes.classes, vertical) if v) < vertical.sum()]:
+              and not _most_walls_hold(planes, vertical, c)]:
         top, count = ceiling_height(scene.cameras, frames, labels, planes, n, d, [c],
                                     threshold=cfg.plane_threshold * diag, min_points=min_points)
         found["ceiling_boundary_points"] += count
         if top is None:
             continue
-        xyz, cls, _ = ceiling_points(scene.cameras, frames, labels, n, d - top, [c], stride=max(1, int(cfg.plane_stride)))
-        # The views see through a level plane at a window's sill, to the wall above it: a test room's window, cut
-        # by the top of every view that shows its sill, made a level plane at 1.67 m in a room 3.2 m high, which
-        # 30 × as many sight lines cross as end on. A real ceiling's share is what stray points above it make:
-        # 0–0.21 on tuning rooms 6–10, so the share allowed is 1 (more crossing it than ending on it).
-        if contradicted(sightlines, n, d - top, xyz, cfg.plane_threshold * diag, max_crossing_share=1.0):
+        grown = _level_plane_over_pixels(scene, frames, labels, planes, n, d - top, c, cfg, diag, sightlines)
+        if grown is None:
             found["ceiling_contradicted"] += 1
             continue
-        planes = planes.with_plane(n, d - top, xyz, cls, cfg.plane_threshold * diag)
+        planes = grown
         found["ceiling_height"] = round(top, 4)
     return planes, found
+
+
+def _most_walls_hold(planes, vertical: np.ndarray, class_id: int) -> bool:
+    """Whether half the vertical planes (walls) or more hold ``class_id``: then it is a wall's class, not a
+    ceiling's (a few walls can hold the ceiling class from the points along their top edges)."""
+    return 2 * sum(class_id in k for k, v in zip(planes.classes, vertical) if v) >= vertical.sum()
+
+
+def _level_plane_over_pixels(scene: Scene, frames, labels, planes, normal: np.ndarray, offset: float, class_id: int,
+                             cfg: ImageDepthConfig, diag: float, sightlines: tuple[np.ndarray, np.ndarray]):
+    """The planes and one more, ``normal · x + offset = 0``, over the points where the rays of the pixels the
+    labels call ``class_id`` meet it (:func:`lift3d.sfm.planes.ceiling_points`), holding that class; None when
+    the views see through it there."""
+    # here, not at module level: keeps `import lift3d.train` cheap (lift3d.sfm loads OpenCV)
+    from lift3d.sfm.planes import ceiling_points, contradicted
+
+    xyz, cls, _ = ceiling_points(scene.cameras, frames, labels, normal, offset, [class_id],
+                                 stride=max(1, int(cfg.plane_stride)))
+    # The views see through a level plane at a window's sill, to the wall above it: a test room's window, cut
+    # by the top of every view that shows its sill, made a level plane at 1.67 m in a room 3.2 m high, which
+    # 30 × as many sight lines cross as end on. A real ceiling's share is what stray points above it make:
+    # 0–0.21 on tuning rooms 6–10, so the share allowed is 1 (more crossing it than ending on it). Fewer than
+    # three points, or points along a line, count as contradicted too.
+    if contradicted(sightlines, normal, offset, xyz, cfg.plane_threshold * diag, max_crossing_share=1.0):
+        return None
+    return planes.with_plane(normal, offset, xyz, cls, cfg.plane_threshold * diag)
 
 
 def _extend_level_ceilings(scene: Scene, frames, labels, planes, n: np.ndarray, d: float, stuff, cfg: ImageDepthConfig,
@@ -509,9 +532,6 @@ def _extend_level_ceilings(scene: Scene, frames, labels, planes, n: np.ndarray, 
     ceiling (:func:`_ceiling_plane`), and those points become one more plane at the same place holding the
     class. A class that half the walls hold or more is not a ceiling's; a plane that more sight lines cross
     than end on over that reach is not added."""
-    # here, not at module level: keeps `import lift3d.train` cheap (lift3d.sfm loads OpenCV)
-    from lift3d.sfm.planes import ceiling_points, contradicted
-
     vertical = planes.vertical(n)
     eye = float(np.median(scene.cameras.centers[np.asarray(frames, np.int64)] @ n + d))
     extended = 0
@@ -519,16 +539,13 @@ def _extend_level_ceilings(scene: Scene, frames, labels, planes, n: np.ndarray, 
         if float(planes.origin[k] @ n + d) <= eye:
             continue
         for c in sorted(int(c) for c in planes.classes[k] if c in stuff):
-            if 2 * sum(c in cl for cl, v in zip(planes.classes, vertical) if v) >= vertical.sum():
+            if _most_walls_hold(planes, vertical, c):
                 continue
-            xyz, cls, _ = ceiling_points(scene.cameras, frames, labels, planes.normal[k], float(planes.offset[k]), [c],
-                                         stride=max(1, int(cfg.plane_stride)))
-            if len(xyz) < 3 or contradicted(sightlines, planes.normal[k], float(planes.offset[k]), xyz,
-                                            cfg.plane_threshold * diag, max_crossing_share=1.0):
-                continue
-            grown = planes.with_plane(planes.normal[k], float(planes.offset[k]), xyz, cls, cfg.plane_threshold * diag)
-            extended += len(grown) > len(planes)
-            planes = grown
+            grown = _level_plane_over_pixels(scene, frames, labels, planes, planes.normal[k], float(planes.offset[k]),
+                                             c, cfg, diag, sightlines)
+            if grown is not None:
+                extended += len(grown) > len(planes)
+                planes = grown
     return planes, extended
 
 
