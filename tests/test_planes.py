@@ -609,12 +609,14 @@ def test_the_ceiling_step_runs_with_or_without_the_floor_line(floor_room):
     no_far = image_depth_targets(scene, frames, ImageDepthConfig(source="planes", plane_stride=2,
                                                                  plane_floor_line_walls=False)).info["planes"]
     assert "floor_line_walls" not in no_far
-    # so are the textured-ceiling and enclosed-segment steps, each with its switch
+    # so are the textured-ceiling, enclosed-segment and standing-thing steps, each with its switch
     assert "ceiling_extended" in no_far and "enclosed" in no_far
+    assert "standing_faces" in no_far and "standing_faces_refuted" in no_far
     neither = image_depth_targets(scene, frames, ImageDepthConfig(source="planes", plane_stride=2,
                                                                   plane_ceiling_extend=False,
-                                                                  plane_enclosed=False)).info["planes"]
-    assert "ceiling_extended" not in neither and "enclosed" not in neither
+                                                                  plane_enclosed=False,
+                                                                  plane_standing=False)).info["planes"]
+    assert "ceiling_extended" not in neither and "enclosed" not in neither and "standing_faces" not in neither
 
 
 def test_label_boundary_finds_where_rows_of_one_class_sit_on_another():

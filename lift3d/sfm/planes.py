@@ -457,7 +457,7 @@ def floor_boundary_points(cameras, frames, labels: dict[int, np.ndarray], normal
     for i in frames:
         i = int(i)
         sem = labels[i]
-        hits = _boundary_floor_hits(cameras, i, sem, normal, offset, wall_ids, floor_ids, min_rows)
+        hits = boundary_floor_hits(cameras, i, sem, normal, offset, wall_ids, floor_ids, min_rows)
         if hits is None:
             continue
         r, c, o, d, t, denom = hits
@@ -475,11 +475,13 @@ def floor_boundary_points(cameras, frames, labels: dict[int, np.ndarray], normal
     return np.concatenate(out_xyz), np.concatenate(out_cls), np.concatenate(out_cam)
 
 
-def _boundary_floor_hits(cameras, i: int, sem: np.ndarray, normal: np.ndarray, offset: float, wall_ids, floor_ids,
+def boundary_floor_hits(cameras, i: int, sem: np.ndarray, normal: np.ndarray, offset: float, wall_ids, floor_ids,
                          min_rows: int):
-    """Where the rays through view ``i``'s wall-on-floor label boundaries meet the floor plane ahead, from above:
-    ``(rows, cols, origins, directions, t, cos)`` of those that do (``cos`` the ray's cosine with ``normal``,
-    negative), or None for a rolled view (an image column far from vertical) or one without such a boundary."""
+    """Where the rays through view ``i``'s label boundaries with ``wall_ids`` rows directly on ``floor_ids`` rows
+    (a wall's foot, or a thing's: :mod:`lift3d.sfm.standing`) meet the floor plane ahead, from above:
+    ``(rows, cols, origins, directions, t, cos)`` of those that do (``rows`` the last upper row, ``cos`` the ray's
+    cosine with ``normal``, negative), or None for a rolled view (an image column far from vertical) or one
+    without such a boundary."""
     if abs(cameras.c2w_opencv[i][:3, 0] @ normal) > 0.3:
         return None
     r, c = label_boundary(sem, wall_ids, floor_ids, min_rows, same="upper")  # r: the last wall row
@@ -600,7 +602,7 @@ def floor_line(cameras, frames, labels: dict[int, np.ndarray], normal: np.ndarra
     for i in frames:
         i = int(i)
         sem = labels[i]
-        hits = _boundary_floor_hits(cameras, i, sem, normal, offset, wall_ids, floor_ids, min_rows)
+        hits = boundary_floor_hits(cameras, i, sem, normal, offset, wall_ids, floor_ids, min_rows)
         if hits is None:
             continue
         r, c, o, d, t, _ = hits

@@ -552,7 +552,9 @@ def image_depth_lines(info: dict | None) -> list[str]:
                         if planes.get("refuted_by_other_views") else "")
                      + (f" ({planes['ceiling_extended']} textured ceilings grown over their pixels)"
                         if planes.get("ceiling_extended") else "")
-                     + (f" ({planes['enclosed']} on segments a plane surrounds)" if planes.get("enclosed") else ""))
+                     + (f" ({planes['enclosed']} on segments a plane surrounds)" if planes.get("enclosed") else "")
+                     + (f" ({planes['standing']} on {planes['standing_faces']} upright faces of things on the floor)"
+                        if planes.get("standing") else ""))
         if info.get("dense_on_things"):
             text += f", {info['dense_on_things']} plane-sweep depths on objects"
         text += f"; {info.get('seconds', 0):.0f} s)"
