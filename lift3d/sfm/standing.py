@@ -197,7 +197,7 @@ def standing_faces(cameras, frames, labels: dict[int, np.ndarray], normal: np.nd
     """
     normal = np.asarray(normal, np.float64)
     normal = normal / np.linalg.norm(normal)
-    feet, cls, view, slip, eye = [], [], [], [], []
+    feet, cls, view, eye = [], [], [], []
     for i in frames:
         i = int(i)
         hits = boundary_floor_hits(cameras, i, labels[i], normal, offset, thing_classes, floor_classes, min_rows)
@@ -207,7 +207,7 @@ def standing_faces(cameras, frames, labels: dict[int, np.ndarray], normal: np.nd
         s = t / (min(cameras.fx[i], cameras.fy[i]) * np.abs(cos))  # one pixel along a grazing ray
         ok = s < tolerance
         feet.append(o[ok] + t[ok, None] * d[ok]), cls.append(labels[i][r[ok], c[ok]]), eye.append(o[ok])
-        view.append(np.full(int(ok.sum()), i)), slip.append(s[ok])
+        view.append(np.full(int(ok.sum()), i))
     empty = StandingFaces(np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0), np.zeros(0, np.int64), np.zeros(0),
                           np.zeros(0, np.int64), np.zeros((0, 3)), normal)
     if not feet or not sum(len(f) for f in feet):
