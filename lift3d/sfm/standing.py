@@ -64,7 +64,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from lift3d.sfm.planes import boundary_floor_hits
+from lift3d.sfm.planes import _plane_basis, boundary_floor_hits, ray_plane_distance
 
 
 @dataclass
@@ -140,9 +140,7 @@ class StandingFaces:
             mine = np.flatnonzero(classes == self.classes[k])
             if not len(mine):
                 continue
-            cos = directions[mine] @ normal
-            with np.errstate(divide="ignore", invalid="ignore"):
-                t = ((self.start[k] - origins[mine]) @ normal) / cos
+            t, cos = ray_plane_distance(origins[mine], directions[mine], normal, -float(normal @ self.start[k]))
             x = origins[mine] + t[:, None] * directions[mine]
             s = (x - self.start[k]) @ along
             h = (x - self.start[k]) @ self.up
@@ -219,7 +217,7 @@ def standing_faces(cameras, frames, labels: dict[int, np.ndarray], normal: np.nd
     keep = top > 0
     feet, cls, view, top, eye = feet[keep], cls[keep], view[keep], top[keep], eye[keep]
     rng = np.random.default_rng(seed)
-    basis = _floor_basis(normal)
+    basis = _plane_basis(normal)
     faces = []
     for c in np.unique(cls):
         m = cls == c
@@ -230,14 +228,6 @@ def standing_faces(cameras, frames, labels: dict[int, np.ndarray], normal: np.nd
     c, start, end, height, rms, views, facing = zip(*faces)
     return StandingFaces(np.asarray(start), np.asarray(end), np.asarray(height), np.asarray(c, np.int64),
                          np.asarray(rms), np.asarray(views, np.int64), np.asarray(facing), normal)
-
-
-def _floor_basis(normal: np.ndarray) -> np.ndarray:
-    """``[2, 3]`` orthonormal vectors spanning the floor."""
-    helper = np.eye(3)[int(np.argmin(np.abs(normal)))]
-    e1 = np.cross(normal, helper)
-    e1 /= np.linalg.norm(e1)
-    return np.stack([e1, np.cross(normal, e1)])
 
 
 def _runs(feet: np.ndarray, view: np.ndarray, top: np.ndarray, eye: np.ndarray, basis: np.ndarray,
