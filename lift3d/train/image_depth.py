@@ -242,8 +242,10 @@ def _plane_rows(scene: Scene, sparse: SparsePoints, dense: DenseDepth, frames: n
     percent dense coverage (docs/sfm.md). Points are thinned to one per ``plane_voxel`` cell and class, so a
     textured corner that the plane sweep covers densely does not outvote a wall; every observation is a
     sight line for :func:`lift3d.sfm.planes.fit_planes`' free-space test. With ``plane_floor_boundary``, the
-    planes are fitted once more with the wall points the labels' wall-on-floor boundaries give. ``labels``: frame
-    → semantic pseudo-labels of every frame of ``frames``."""
+    planes are fitted once more with the wall points the labels' wall-on-floor boundaries give. With
+    ``plane_standing``, the pixels of things get the depth of the upright faces rising from where the labels put
+    them on the floor plane (:mod:`lift3d.sfm.standing`), unless the plane sweep's depths on them disagree.
+    ``labels``: frame → semantic pseudo-labels of every frame of ``frames``."""
     # here, not at module level: keeps `import lift3d.train` cheap (lift3d.sfm loads OpenCV)
     from lift3d.sfm.mvs import scene_up
     from lift3d.sfm.planes import enclosed_segments, fit_planes, floor_boundary_points, label_support, point_classes
