@@ -3,7 +3,7 @@ overhang gets none, and stereo depths that disagree with a face refute it."""
 
 import numpy as np
 
-from lift3d.data.cameras import Cameras
+from lift3d.data.cameras import Cameras, look_at
 from lift3d.sfm.standing import StandingFaces, standing_faces, stereo_agreement
 
 WALL, FLOOR, BOX, SLAB = 1, 2, 6, 7
@@ -11,16 +11,6 @@ UP = np.array([0.0, 0.0, 1.0])
 ROOM = (np.array([-3.0, -3.0, 0.0]), np.array([3.0, 3.0, 2.6]))
 BOX_LO, BOX_HI = np.array([-0.5, 1.0, 0.0]), np.array([0.3, 1.6, 1.2])     # a plain cabinet on the floor
 SLAB_LO, SLAB_HI = np.array([-1.3, -1.2, 0.7]), np.array([-0.3, -0.5, 0.75])  # a table top, its legs unseen
-
-
-def _look_at(eye, target):
-    f = np.asarray(target, float) - eye
-    f /= np.linalg.norm(f)
-    r = np.cross(f, UP)
-    r /= np.linalg.norm(r)
-    c2w = np.eye(4)
-    c2w[:3, 0], c2w[:3, 1], c2w[:3, 2], c2w[:3, 3] = r, np.cross(r, f), -f, eye  # OpenGL axes
-    return c2w
 
 
 def _slab_hit(o, d, lo, hi):
@@ -39,7 +29,7 @@ def _room(size=64, f=56.0, with_slab=False):
     c2w = []
     for e in eyes:
         look = target if not with_slab or e[1] > -0.3 else np.array([-0.8, -0.85, 0.5])
-        c2w.append(_look_at(e, look))
+        c2w.append(look_at(e, look))
     cams = Cameras(np.stack(c2w), fx=f, fy=f, cx=size / 2, cy=size / 2, width=size, height=size)
     labels, depth = {}, {}
     v, u = np.mgrid[0:size, 0:size]

@@ -863,11 +863,21 @@ def _main_stretch(along: np.ndarray, gap: float) -> np.ndarray:
     >>> _main_stretch(np.array([0.0, 0.1, 0.3, 2.5, 2.6]), 0.5).tolist()
     [True, True, True, False, False]
     """
+    run = stretch_ids(along, gap)
+    return run == np.argmax(np.bincount(run))
+
+
+def stretch_ids(along: np.ndarray, gap: float) -> np.ndarray:
+    """``int64 [N]``: which stretch of the positions ``along`` (a line) each one is in, stretches being runs
+    without a gap over ``gap``, numbered in order along the line.
+
+    >>> stretch_ids(np.array([2.6, 0.0, 2.5, 0.3]), 0.5).tolist()
+    [1, 0, 1, 0]
+    """
     order = np.argsort(along)
-    run = np.r_[0, np.cumsum(np.diff(along[order]) > gap)]
-    keep = np.zeros(len(along), bool)
-    keep[order[run == np.argmax(np.bincount(run))]] = True
-    return keep
+    run = np.empty(len(along), np.int64)
+    run[order] = np.r_[0, np.cumsum(np.diff(along[order]) > gap)]
+    return run
 
 
 def add_walls(planes: StuffPlanes, cameras, labels: dict[int, np.ndarray], line: FloorLine, walls, up: np.ndarray,

@@ -26,14 +26,9 @@ Examples
 A 1 m cube standing 3 m in front of a row of five cameras 1.5 m above the floor: one face, along the cube's
 front, about 1 m high; the middle view's ray to the cube's centre meets it at y = 3.
 
->>> from lift3d.data.cameras import Cameras
->>> def look_at(eye, target):
-...     f = np.asarray(target, float) - eye; f /= np.linalg.norm(f)
-...     r = np.cross(f, [0, 0, 1.0]); r /= np.linalg.norm(r); u = np.cross(r, f)
-...     c2w = np.eye(4); c2w[:3, 0], c2w[:3, 1], c2w[:3, 2], c2w[:3, 3] = r, u, -f, eye  # OpenGL axes
-...     return c2w
+>>> from lift3d.data.cameras import Cameras, look_at
 >>> eyes = np.array([[x, 0.0, 1.5] for x in (-2.0, -1.0, 0.0, 1.0, 2.0)])
->>> cams = Cameras(np.stack([look_at(e, [0, 3.5, 0.5]) for e in eyes]), fx=48.0, fy=48.0, cx=32.0, cy=32.0,
+>>> cams = Cameras(np.stack([look_at(e, np.array([0, 3.5, 0.5])) for e in eyes]), fx=48.0, fy=48.0, cx=32.0, cy=32.0,
 ...                width=64, height=64)
 >>> def labels(i):  # 2 = floor (z = 0), 1 = wall (y = 5), 6 = the cube [-0.5, 0.5] x [3, 4] x [0, 1]
 ...     v, u = np.mgrid[0:64, 0:64]
@@ -64,7 +59,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from lift3d.sfm.planes import _plane_basis, boundary_floor_hits, ray_plane_distance
+from lift3d.sfm.planes import _plane_basis, boundary_floor_hits, ray_plane_distance, stretch_ids
 
 
 @dataclass
@@ -235,7 +230,7 @@ def _runs(feet: np.ndarray, view: np.ndarray, top: np.ndarray, eye: np.ndarray, 
     """Sequential RANSAC of lines through one class's feet (``[F, 3]``, on the floor, seen from ``eye``):
     ``(start, end, height, rms, views, facing)`` of each straight run, split at gaps over ``3 × threshold``, that ``min_views`` views' feet hold."""
     out = []
-    origin = feet.mean(0) if len(feet) else np.zeros(3)
+    origin = feet.mean(0)
     p = (feet - origin) @ basis.T  # [F, 2]
     left = np.ones(len(p), bool)
     while len(np.unique(view[left])) >= min_views:
@@ -263,11 +258,9 @@ def _runs(feet: np.ndarray, view: np.ndarray, top: np.ndarray, eye: np.ndarray, 
         inl = idx[np.abs(dist) < threshold]
         # a face's stragglers (a boundary half a pixel off, far away) would make a second face just behind it
         left[idx[np.abs(dist) < 2 * threshold]] = False
-        s = (p[inl] - centre) @ direction
-        order = np.argsort(s)
-        run = np.r_[0, np.cumsum(np.diff(s[order]) > 3 * threshold)]
+        run = stretch_ids((p[inl] - centre) @ direction, 3 * threshold)
         for k in np.unique(run):
-            members = inl[order[run == k]]
+            members = inl[run == k]
             if len(np.unique(view[members])) < min_views:
                 continue
             sk = (p[members] - centre) @ direction

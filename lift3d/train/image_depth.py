@@ -303,7 +303,7 @@ def _plane_rows(scene: Scene, sparse: SparsePoints, dense: DenseDepth, frames: n
         if floor is not None:
             f, n, d = floor
             walls = [c for c in stuff if c not in planes.classes[f]]
-            height = float(np.percentile(thinned @ n + d, 99)) if len(thinned) else 0.0
+            height = _height_above(thinned, n, d)
             foot, foot_cls, foot_cam = floor_boundary_points(
                 scene.cameras, frames, labels, n, d, planes.classes[f], walls, step=2 * cfg.plane_threshold * diag,
                 max_height=height, tolerance=cfg.plane_threshold * diag)
@@ -317,7 +317,7 @@ def _plane_rows(scene: Scene, sparse: SparsePoints, dense: DenseDepth, frames: n
         # far plain walls: their near feet were too few, but many views' boundaries agree in pixels
         floor = _floor_plane(planes, up)
         if floor is not None:
-            height = float(np.percentile(thinned @ floor[1] + floor[2], 99)) if len(thinned) else 0.0
+            height = _height_above(thinned, floor[1], floor[2])
             planes, found = _floor_line_walls(scene, frames, labels, planes, floor, stuff, cfg, diag, height,
                                               (cams, seen_xyz))
             info.update(found)
@@ -345,7 +345,7 @@ def _plane_rows(scene: Scene, sparse: SparsePoints, dense: DenseDepth, frames: n
         f, fn, fd = floor
         faces = standing_faces(scene.cameras, frames, labels, fn, fd, planes.classes[f], scene.thing_ids, stuff,
                                threshold=cfg.plane_threshold * diag, step=0.5 * cfg.plane_threshold * diag,
-                               max_height=float(np.percentile(thinned @ fn + fd, 99)) if len(thinned) else 0.0,
+                               max_height=_height_above(thinned, fn, fd),
                                tolerance=2 * cfg.plane_threshold * diag)
         # a plant's leaves spread wider than its pot: where stereo matched a thing, its depths refute a face
         met, agreeing = stereo_agreement(faces, scene.cameras, [index[n] for n in dense.frame_names], labels,
@@ -428,6 +428,12 @@ def _floor_plane(planes, up: np.ndarray) -> tuple[int, np.ndarray, float] | None
     f = int(np.flatnonzero(level)[np.argmax(planes.inliers[level])])
     n, d = planes.normal[f], float(planes.offset[f])
     return (f, -n, -d) if n @ up < 0 else (f, n, d)
+
+
+def _height_above(points: np.ndarray, normal: np.ndarray, offset: float) -> float:
+    """How high the points reach above the floor ``normal · x + offset = 0`` (99th percentile; 0 without points):
+    the top of the vertical lines that the floor's boundaries with walls and things rise along."""
+    return float(np.percentile(points @ normal + offset, 99)) if len(points) else 0.0
 
 
 def wall_classes(planes, floor: int, up: np.ndarray, stuff) -> list[int]:
