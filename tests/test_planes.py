@@ -216,6 +216,57 @@ def test_floor_line_walls_are_added_only_where_the_views_do_not_see_through_them
 
 
 
+def test_a_floor_line_wall_settles_onto_the_stereo_points_behind_its_foot():
+    # Labels a row off put a far wall's foot several centimetres inside the room; the stereo points on the wall
+    # say where it is, and the wall moves there before the views' sight lines test it.
+    cams, labels = _corridor_views([0] * 8)
+    known, pts = _side_walls_and_floor()
+    line = floor_line(cams, range(8), labels, UP, 0.0, [FLOOR], [WALL])
+    n, e, obs = floor_line_walls(line, np.array([[1.0, 0, 0]]), known, threshold=0.1)[0]
+    inside = [(n, -5.93 * n[0], obs)]  # the wall x = 5.93
+    rng = np.random.default_rng(4)
+    on_wall = np.c_[6.0 + rng.normal(0, 0.02, 200), rng.uniform(-1.8, 1.8, 200), rng.uniform(0.1, 2.4, 200)]
+    seen = np.r_[pts, on_wall]
+    sight = (np.repeat(cams.centers, len(seen), 0), np.tile(seen, (8, 1)))
+    for settle, x in [(True, 6.0), (False, 5.93)]:
+        planes, added = add_walls(known, cams, labels, line, inside, UP, 2.5, 0.1, sight, settle=settle)
+        t, _ = planes.first_hit(np.array([[0.0, 0.0, 1.2]]), np.array([[1.0, 0.0, 0.0]]))
+        assert added == 1 and t[0] == pytest.approx(x, abs=0.015)
+
+
+def test_walls_turn_onto_the_room_directions_only_while_their_points_still_fit():
+    from lift3d.sfm.planes import square_walls, wall_directions
+
+    rng = np.random.default_rng(6)
+    floor = np.c_[rng.uniform(-4, 4, 400), rng.uniform(-3, 3, 400), np.zeros(400)]
+    walls = [np.c_[np.full(150, x), rng.uniform(-3, 3, 150), rng.uniform(0, 2.5, 150)] for x in (-4.0, 4.0)]
+    walls.append(np.c_[rng.uniform(-4, 4, 150), np.full(150, 3.0), rng.uniform(0, 2.5, 150)])
+    # a fourth wall really at 8° to the others (a bay)
+    a = np.radians(8.0)
+    y = rng.uniform(-4, 4, 150)
+    bay = np.c_[y, -3.0 + np.tan(a) * y, rng.uniform(0, 2.5, 150)]
+    pts = np.r_[floor, *walls, bay]
+    planes = fit_planes(pts, np.r_[np.full(400, FLOOR), np.full(600, WALL)], [WALL, FLOOR], threshold=0.05,
+                        up=UP)
+    b = np.radians(2.0)
+    directions = wall_directions(planes, UP)
+    assert np.abs(directions @ np.array([1.0, 0, 0])).max() == pytest.approx(1.0, abs=1e-3)
+    # the three square walls were fitted straight: nothing to turn; the bay is 8° off, beyond the 5° allowed
+    squared, turned = square_walls(planes, directions, pts, 0.05)
+    assert turned == 0
+    # with the bay allowed to turn (10°), its points would not fit any more: it stays as it is
+    squared, turned = square_walls(planes, directions, pts, 0.05, max_turn_deg=10.0)
+    assert turned == 0 and np.allclose(squared.normal, planes.normal)
+    # a square wall's plane turned 2° by stereo comes back onto its direction, through its points
+    j = int(np.argmax(np.abs(planes.normal[:, 0])))
+    turned_n = np.array([np.cos(b), np.sin(b), 0.0]) * np.sign(planes.normal[j, 0])
+    tilted = planes._moved(j, turned_n, -float(turned_n @ planes.origin[j]))
+    squared, turned = square_walls(tilted, directions, pts, 0.05)
+    assert turned == 1 and abs(squared.normal[j] @ np.array([1.0, 0, 0])) == pytest.approx(1.0, abs=1e-3)
+    assert np.abs(pts[np.abs(pts @ squared.normal[j] + squared.offset[j]) < 0.05] @ squared.normal[j]
+                  + squared.offset[j]).max() < 0.05
+
+
 def _with_far_wall(known, x: float, tilt_deg: float = 0.0):
     """``known`` and a far wall through x at y = 0, turned ``tilt_deg`` about the vertical, over y ±1.8, z 0.2–2.4."""
     rng = np.random.default_rng(3)
@@ -617,6 +668,11 @@ def test_the_ceiling_step_runs_with_or_without_the_floor_line(floor_room):
                                                                   plane_enclosed=False,
                                                                   plane_standing=False)).info["planes"]
     assert "ceiling_extended" not in neither and "enclosed" not in neither and "standing_faces" not in neither
+    # squaring the walls is recorded (the scene's walls are square already) and has a switch
+    assert "walls_squared" in neither
+    unsquared = image_depth_targets(scene, frames, ImageDepthConfig(source="planes", plane_stride=2,
+                                                                    plane_square_walls=False)).info["planes"]
+    assert "walls_squared" not in unsquared
 
 
 def test_label_boundary_finds_where_rows_of_one_class_sit_on_another():

@@ -123,6 +123,11 @@ class ImageDepthConfig:
     """``planes``: move a wall found by stereo to where the views' wall-on-floor boundaries put it when they
     clearly disagree (a plain wall fitted to a few points can sit 10–20 cm inside a long room, or turn a few
     degrees; :func:`lift3d.sfm.planes.correct_walls`). Needs ``plane_floor_line_walls``."""
+    plane_square_walls: bool = True
+    """``planes``: walls within a few degrees of the room's wall directions (the walls' mean direction modulo a
+    right angle) turn onto them about the middle of their points, when their points still fit
+    (:func:`lift3d.sfm.planes.square_walls`): stereo turns a plain wall by 1–4° (tuning rooms 5–24), which at
+    the end of a 5 m wall is 5–17 cm."""
     plane_line_pixels: float = 1.0
     """``planes``: how many rows a view's wall-on-floor boundary may be off the wall's foot and still count
     for it (``plane_floor_line_walls``)."""

@@ -248,7 +248,8 @@ def _plane_rows(scene: Scene, sparse: SparsePoints, dense: DenseDepth, frames: n
     ``labels``: frame → semantic pseudo-labels of every frame of ``frames``."""
     # here, not at module level: keeps `import lift3d.train` cheap (lift3d.sfm loads OpenCV)
     from lift3d.sfm.mvs import scene_up
-    from lift3d.sfm.planes import enclosed_segments, fit_planes, floor_boundary_points, label_support, point_classes
+    from lift3d.sfm.planes import (enclosed_segments, fit_planes, floor_boundary_points, label_support, point_classes,
+                                   square_walls, wall_directions)
     from lift3d.sfm.standing import standing_faces, stereo_agreement
 
     empty = (np.zeros(0, np.int64),) + (np.zeros(0, np.float32),) * 4 + (np.zeros(0, bool),)
@@ -321,6 +322,12 @@ def _plane_rows(scene: Scene, sparse: SparsePoints, dense: DenseDepth, frames: n
             planes, found = _floor_line_walls(scene, frames, labels, planes, floor, stuff, cfg, diag, height,
                                               (cams, seen_xyz))
             info.update(found)
+    if cfg.plane_square_walls and len(planes):
+        # a plain wall's few stereo points turn its plane by a degree or more: rooms are mostly square
+        floor = _floor_plane(planes, up)
+        directions = wall_directions(planes, floor[1] if floor is not None else up)
+        if directions is not None:
+            planes, info["walls_squared"] = square_walls(planes, directions, thinned, cfg.plane_threshold * diag)
     if cfg.plane_ceiling_boundary and len(planes):
         # walls from stereo alone are enough to place a ceiling: this does not need the floor line
         planes, found = _ceiling_plane(scene, frames, labels, planes, up, stuff, cfg, diag, min_points,
@@ -480,21 +487,15 @@ def _floor_line_walls(scene: Scene, frames, labels, planes, floor, stuff, cfg: I
     normals modulo a right angle, weighted by their points) and at right angles to them, of the classes
     :func:`wall_classes` allows, added by :func:`lift3d.sfm.planes.add_walls`."""
     # here, not at module level: keeps `import lift3d.train` cheap (lift3d.sfm loads OpenCV)
-    from lift3d.sfm.planes import add_walls, correct_walls, floor_line, floor_line_walls
+    from lift3d.sfm.planes import add_walls, correct_walls, floor_line, floor_line_walls, wall_directions
 
     f, n, d = floor
-    vertical = np.flatnonzero(planes.vertical(n))
-    if not len(vertical):
+    directions = wall_directions(planes, n)
+    if directions is None:
         return planes, {"floor_line_walls": 0, "floor_line_moved": 0, "floor_line_observations": 0}
-    basis = np.linalg.svd(n[None])[2][1:]  # two horizontal axes
-    flat = planes.normal[vertical] @ basis.T
-    angle = np.arctan2(flat[:, 1], flat[:, 0])
-    mean = np.angle(np.sum(planes.inliers[vertical] * np.exp(4j * angle))) / 4
-    main = np.cos(mean) * basis[0] + np.sin(mean) * basis[1]
     upright = wall_classes(planes, f, n, stuff)
     line = floor_line(scene.cameras, frames, labels, n, d, sorted(set(planes.classes[f]) - set(upright)), upright)
     threshold = cfg.plane_threshold * diag
-    directions = np.stack([main, np.cross(n, main)])
     moved = 0
     if cfg.plane_floor_line_correct:
         planes, moved = correct_walls(line, directions, planes, threshold, pixel_tolerance=cfg.plane_line_pixels)
