@@ -349,6 +349,32 @@ def test_tsdf_source_fuses_the_rendered_depth_of_the_training_views(analytic):
         extract_labelled_points(analytic.loaded, analytic.scene, source="voxels", num_points=10)
 
 
+def test_box_fill_adds_the_rendered_surface_where_a_soft_wall_at_the_box_has_no_isosurface(analytic):
+    # A wall the box hugs, as a room's box hugs its walls: density 60 over its last 0.04, below the isosurface's
+    # threshold (100) but opaque enough (optical depth 2.4) that the views render it.
+    model = analytic_model()
+    solid = model.field.geometry
+
+    def geometry(x, space=None):
+        sigma, geo, u = solid(x, space)
+        soft = ((x[:, 0] > 0.96) & (x.abs() <= 1.0).all(-1)).to(sigma.dtype) * 60.0
+        return sigma + soft, geo, u
+
+    model.field.geometry = geometry
+    loaded = LoadedRun(analytic.loaded.run, model.cfg, model, analytic.loaded.norm, model.labels, 0,
+                       torch.device("cpu"))
+    kw = dict(num_points=20000, min_support_views=0, density_threshold=100.0, frame="normalized")
+    plain = extract_labelled_points(loaded, analytic.scene, box_fill=False, **kw)
+    filled = extract_labelled_points(loaded, analytic.scene, **kw)
+    assert not (plain.xyz[:, 0] > 0.9).any() and "box_fill" not in plain.thresholds
+    wall = filled.xyz[:, 0] > 0.9
+    assert wall.sum() > 200 and filled.xyz[wall, 0].min() > 0.96 - 1e-3
+    assert filled.thresholds["box_fill"]["points"] >= wall.sum()
+    # the solids keep their isosurface: nothing is added next to them
+    balls = ~wall
+    assert abs(int(balls.sum()) - len(plain.xyz)) <= 0.02 * len(plain.xyz)
+
+
 def test_unbounded_scene_is_contoured_in_contracted_space_and_cropped(tmp_path):
     # Balls at the origin (foreground), at 2.5 (contracted background) and at 10 (beyond the export radius).
     balls = [(np.array([0.0, 0.0, 0.0]), 0.3), (np.array([0.0, 2.5, 0.0]), 0.5), (np.array([0.0, -10.0, 0.0]), 2.0)]

@@ -12,6 +12,9 @@ Three sources of 3D points, all labelled by running the field's semantic and ins
     Unbounded scenes are sampled in contracted space (so the foreground is dense and the background
     sparse, as pixels see it) and written in world coordinates; far background beyond
     :data:`~lift3d.export.mesh.UNBOUNDED_MAX_RADIUS` is skipped.
+    In a bounded scene, where the isosurface has a hole next to the scene box (a wall or ceiling the box
+    hugs: rays end at the box whatever the density), the training views' rendered surface fills it
+    (:func:`box_face_fill`).
 ``tsdf``
     What the training views agree on: the rendered depth of every training view fused into a truncated
     signed distance volume (:mod:`lift3d.export.tsdf`; nerfstudio's ``ns-export tsdf``), its zero level set
@@ -78,6 +81,9 @@ from lift3d.utils.memory import peak_rss_mb
 
 #: Rays source: keep rays whose accumulated opacity exceeds this (nerfstudio's rule).
 RAY_OPACITY_THRESHOLD = 0.5
+#: Surface source, bounded scenes: the rendered surface within this share of the box's diagonal of the box's
+#: faces fills in where the isosurface has nothing (see :func:`box_face_fill`).
+BOX_FILL_MARGIN = 0.01
 #: Point sources of :func:`extract_labelled_points`, the default first.
 SOURCES = ("auto", "surface", "tsdf", "rays")
 #: Statistical outlier removal: neighbours per point (nerfstudio and Open3D's tutorial use 20).
@@ -201,8 +207,8 @@ def extract_labelled_points(loaded: LoadedRun, scene: Scene, *, source: str = "a
                             merge_fragments: bool = True, crumb_points: int | None = None,
                             min_instance_confidence: float = MIN_INSTANCE_CONFIDENCE,
                             min_support_views: int = MIN_SUPPORT_VIEWS, orient_stuff: bool = True,
-                            view_vote: bool = True, view_depth_cache: dict | None = None, device=None,
-                            progress: bool = False) -> LabelledPoints:
+                            view_vote: bool = True, view_depth_cache: dict | None = None, box_fill: bool = True,
+                            device=None, progress: bool = False) -> LabelledPoints:
     """A labelled point cloud of a trained run (see the module docstring for the sources and filters).
 
     Parameters
@@ -260,6 +266,9 @@ def extract_labelled_points(loaded: LoadedRun, scene: Scene, *, source: str = "a
     view_depth_cache : dict, optional
         Those renders are kept in it and reused (:func:`lift3d.export.views.rendered_depth`): pass the same
         dict to :func:`lift3d.export.mesh.extract_labelled_mesh` of the same run and scene.
+    box_fill : bool
+        ``surface`` source, bounded scenes: where the isosurface has a hole next to the scene box (a wall or
+        ceiling the box hugs), the training views' rendered surface fills it (:func:`box_face_fill`; default on).
     device : str, optional
         Move the model to this device first (``cpu``, ``cuda``, ``auto``).
     progress : bool
@@ -287,9 +296,11 @@ def extract_labelled_points(loaded: LoadedRun, scene: Scene, *, source: str = "a
         loaded.model.to(resolve_device(device))
     timings: dict[str, float] = {}
     start = time.perf_counter()
+    if view_depth_cache is None:
+        view_depth_cache = {}  # the box fill and the label vote render the same views
     if source == "surface":
         cand = _surface_points(loaded, scene, int(num_points), density_threshold, progress, timings,
-                               refine=refine_surface)
+                               refine=refine_surface, box_fill=box_fill, view_depth_cache=view_depth_cache)
     elif source == "tsdf":
         cand = _tsdf_points(loaded, scene, int(num_points), progress, timings)
     else:
@@ -420,7 +431,8 @@ def typical_spacing(xyz: np.ndarray, sample: int = 20000, seed: int = 0) -> floa
 
 # ------------------------------------------------------------------------------------------ sources
 def _surface_points(loaded: LoadedRun, scene: Scene, num_points: int, density_threshold, progress: bool,
-                    timings: dict[str, float], refine: bool = True) -> dict[str, Any]:
+                    timings: dict[str, float], refine: bool = True, box_fill: bool = True,
+                    view_depth_cache: dict | None = None) -> dict[str, Any]:
     """Area-uniform samples on the seen part of the isosurface, labelled by the heads."""
     model = loaded.model
     t = time.perf_counter()
@@ -459,6 +471,12 @@ def _surface_points(loaded: LoadedRun, scene: Scene, num_points: int, density_th
     points_grid, pick, _ = sample_surface(surface.grid_vertices.astype(np.float64), surface.faces[seen], num_points)
     x = uncontract(points_grid, surface.contraction) if surface.contraction != "none" else points_grid
     dirs = view_directions(x, cams.centers[seen_by[seen[pick]]])
+    fill_info: dict[str, Any] = {}
+    if model.bounded and box_fill:
+        t = time.perf_counter()
+        fx, fdirs, fill_info = box_face_fill(loaded, scene, x, cams, cache=view_depth_cache)
+        x, dirs = np.r_[x, fx], np.r_[dirs, fdirs]
+        timings["box_fill"] = time.perf_counter() - t
     t = time.perf_counter()
     labels = model.query_labels(x.astype(np.float32), dirs, progress=progress)
     timings["heads"] = time.perf_counter() - t
@@ -468,9 +486,80 @@ def _surface_points(loaded: LoadedRun, scene: Scene, num_points: int, density_th
         "visibility": {"rule": "in a training camera's image, beyond its near plane, no isosurface between "
                                "camera and point", "occluder_tolerance": surface.voxel, "near": near},
     }
+    if fill_info:
+        thresholds["box_fill"] = fill_info
     return {"x": x, "labels": labels, "rgb": None, "thresholds": thresholds,
             "link_radius_normalized": 2.0 * surface.voxel,
             "surface": {"faces": int(len(surface.faces)), "seen_faces": int(len(seen)), **surface.stats}}
+
+
+def box_face_fill(loaded: LoadedRun, scene: Scene, x_surface: np.ndarray, cams, *, cache: dict | None = None,
+                  margin: float = BOX_FILL_MARGIN) -> tuple[np.ndarray, np.ndarray, dict[str, Any]]:
+    """Points of the rendered surface next to a bounded scene's box where the isosurface has none.
+
+    Rays stop at the scene box. A room's box hugs its walls, floor and ceiling, so the field need not build a
+    surface there: the last centimetres before the box end the ray whatever the density. A wall or ceiling
+    met by few depth targets then stays a soft layer below the isosurface's threshold, and its pixels render
+    right while the isosurface has a hole (images-only tuning room 7: 0.74 of the ceiling's GT points within τ
+    of the export; a reported room, 0.41). Each training view without a depth map is rendered
+    (:func:`lift3d.export.views.rendered_depth`, shared with the label vote), its depths back-projected where
+    the opacity reaches one half and the depth agrees with its 3 × 3 median (not an edge between two
+    surfaces), and kept where they lie within ``margin`` of the box's diagonal of a face of the box and more
+    than three point spacings from every isosurface point, thinned to one per point spacing.
+
+    Parameters
+    ----------
+    x_surface : np.ndarray
+        ``[N, 3]`` the isosurface points (normalised coordinates).
+    cams : Cameras
+        The training cameras in normalised coordinates (:func:`lift3d.export.mesh.normalized_cameras`).
+
+    Returns
+    -------
+    (np.ndarray, np.ndarray, dict)
+        ``[M, 3]`` points (normalised), ``[M, 3]`` the directions their views see them along, and the step's
+        record for ``metadata.json``.
+    """
+    from scipy.ndimage import median_filter
+    from scipy.spatial import cKDTree
+
+    from lift3d.export.views import VOTE_MAX_RAYS, rendered_depth
+
+    frames = [int(i) for i in train_frames(scene) if scene.frames[int(i)].depth_path is None]
+    empty = np.zeros((0, 3))
+    info: dict[str, Any] = {"rule": "rendered surface within a margin of the box, where the isosurface has no point",
+                            "margin": float(margin), "views": len(frames), "points": 0}
+    if not frames or len(x_surface) < 2:
+        return empty, empty, info
+    spacing = typical_spacing(x_surface)
+    if spacing <= 0:
+        return empty, empty, info
+    # the label vote renders these views at this downscale too: one render each
+    total = float(sum(int(scene.cameras.width[i]) * int(scene.cameras.height[i]) for i in frames))
+    ds = max(1, int(math.ceil(math.sqrt(total / VOTE_MAX_RAYS))))
+    render = rendered_depth(loaded, scene, cache)
+    scale = float(loaded.norm.scale)
+    lo, hi = loaded.norm.to_normalized(loaded.norm.aabb_world)
+    near_face = margin * float(np.linalg.norm(hi - lo))
+    tree = cKDTree(x_surface)
+    pts, dirs = [], []
+    for i in frames:
+        depth = render(i, ds)
+        smooth = np.abs(depth - median_filter(depth, size=3)) <= 0.02 * depth + 0.25 * near_face / scale
+        r, c = np.nonzero((depth > 0) & smooth)
+        if not len(r):
+            continue
+        o, d = cams.rays(i, c * ds + (ds - 1) / 2, r * ds + (ds - 1) / 2)
+        p = o + d * (depth[r, c] * scale / (d @ cams.c2w_opencv[i][:3, 2]))[:, None]
+        keep = np.minimum(p - lo, hi - p).min(1) <= near_face
+        keep[keep] = tree.query(p[keep], distance_upper_bound=3 * spacing)[0] > 3 * spacing
+        pts.append(p[keep]), dirs.append(d[keep])
+    if not pts or not sum(len(p) for p in pts):
+        return empty, empty, info
+    pts, dirs = np.concatenate(pts), np.concatenate(dirs)
+    first = np.unique(np.floor(pts / spacing).astype(np.int64), axis=0, return_index=True)[1]
+    info.update(points=int(len(first)), spacing=float(spacing), downscale=ds)
+    return pts[first], dirs[first], info
 
 
 def _tsdf_points(loaded: LoadedRun, scene: Scene, num_points: int, progress: bool,
