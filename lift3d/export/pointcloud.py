@@ -58,7 +58,7 @@ from lift3d.errors import InputError
 from lift3d.export.cleanup import clean_instances
 from lift3d.export.instances import assign_instances, voxel_downsample_majority
 from lift3d.export.stuff import orient_stuff_labels
-from lift3d.export.views import vote_stuff_labels
+from lift3d.export.views import VOTE_MAX_RAYS, rendered_depth, vote_stuff_labels
 from lift3d.export.mesh import (
     CameraVisibility,
     _check_frame,
@@ -522,8 +522,6 @@ def box_face_fill(loaded: LoadedRun, scene: Scene, x_surface: np.ndarray, cams, 
     """
     from scipy.ndimage import median_filter
     from scipy.spatial import cKDTree
-
-    from lift3d.export.views import VOTE_MAX_RAYS, rendered_depth
 
     frames = [int(i) for i in train_frames(scene) if scene.frames[int(i)].depth_path is None]
     empty = np.zeros((0, 3))

@@ -248,8 +248,8 @@ def _plane_rows(scene: Scene, sparse: SparsePoints, dense: DenseDepth, frames: n
     ``labels``: frame → semantic pseudo-labels of every frame of ``frames``."""
     # here, not at module level: keeps `import lift3d.train` cheap (lift3d.sfm loads OpenCV)
     from lift3d.sfm.mvs import scene_up
-    from lift3d.sfm.planes import (enclosed_segments, fit_planes, floor_boundary_points, label_support, point_classes,
-                                   square_walls, wall_directions)
+    from lift3d.sfm.planes import enclosed_segments, fit_planes, floor_boundary_points, label_support
+    from lift3d.sfm.planes import point_classes, square_walls, wall_directions
     from lift3d.sfm.standing import standing_faces, stereo_agreement
 
     empty = (np.zeros(0, np.int64),) + (np.zeros(0, np.float32),) * 4 + (np.zeros(0, bool),)
