@@ -744,6 +744,23 @@ def test_cli_end_to_end(tiny_run, tmp_path, capsys):
     assert np.linalg.norm(pts.xyz.mean(0) - gt["xyz"].mean(0)) < np.linalg.norm(np.ptp(gt["xyz"], 0))
 
 
+def test_cli_box_fill_switch_reaches_the_point_export(tiny_run, tmp_path, monkeypatch):
+    import lift3d.export.pointcloud as pointcloud
+    from lift3d.cli.main import main
+
+    seen = []
+
+    def fake(*args, **kwargs):
+        seen.append(kwargs.get("box_fill", True))
+        raise InputError("fake", "stop here")
+
+    monkeypatch.setattr(pointcloud, "extract_labelled_points", fake)
+    for flags, expected in (([], True), (["--no-box-fill"], False)):
+        assert main(["export", "--run", str(tiny_run), "--pointcloud", "--output-dir", str(tmp_path / "out"),
+                     "--quiet", *flags]) == 2
+        assert seen[-1] is expected
+
+
 def test_cli_errors_are_one_line(tiny_run, tmp_path, capsys):
     from lift3d.cli.main import main
 
