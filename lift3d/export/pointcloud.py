@@ -507,9 +507,9 @@ def box_face_fill(loaded: LoadedRun, scene: Scene, x_surface: np.ndarray, cams, 
     the opacity reaches one half and the depth agrees with its 3 × 3 median (not an edge between two
     surfaces), and kept where they lie within ``margin`` of the box's diagonal of a face of the box and more
     than three point spacings (and ``min_gap``) from every isosurface point, thinned to one per point spacing.
-    ``min_gap`` keeps a dense export from doubling a wall whose isosurface lies a grid cell from its rendered
-    depth (the export passes two isosurface voxels, its instance link radius: at a million points three spacings
-    are 1.7 cm, and seed 0's export got a quarter of its points from the fill).
+    ``min_gap`` keeps a dense export from covering again surface the isosurface has (the export passes two
+    isosurface voxels, its instance link radius: at a million points three spacings are 1.7 cm, and a reported
+    room's export took a quarter of its points from the fill, all but 0.5 % of them within two voxels of it).
 
     Parameters
     ----------
