@@ -58,7 +58,7 @@ from lift3d.errors import InputError
 from lift3d.export.cleanup import clean_instances
 from lift3d.export.instances import assign_instances, voxel_downsample_majority
 from lift3d.export.stuff import orient_stuff_labels
-from lift3d.export.views import VOTE_MAX_RAYS, rendered_depth, vote_stuff_labels
+from lift3d.export.views import rendered_depth, view_depths, vote_stuff_labels
 from lift3d.export.mesh import (
     CameraVisibility,
     _check_frame,
@@ -471,11 +471,11 @@ def _surface_points(loaded: LoadedRun, scene: Scene, num_points: int, density_th
     points_grid, pick, _ = sample_surface(surface.grid_vertices.astype(np.float64), surface.faces[seen], num_points)
     x = uncontract(points_grid, surface.contraction) if surface.contraction != "none" else points_grid
     dirs = view_directions(x, cams.centers[seen_by[seen[pick]]])
+    link = 2.0 * surface.voxel  # instances link across about two grid cells
     fill_info: dict[str, Any] = {}
     if model.bounded and box_fill:
         t = time.perf_counter()
-        fx, fdirs, fill_info = box_face_fill(loaded, scene, x, cams, cache=view_depth_cache,
-                                             min_gap=2.0 * surface.voxel)
+        fx, fdirs, fill_info = box_face_fill(loaded, scene, x, cams, cache=view_depth_cache, min_gap=link)
         x, dirs = np.r_[x, fx], np.r_[dirs, fdirs]
         timings["box_fill"] = time.perf_counter() - t
     t = time.perf_counter()
@@ -490,7 +490,7 @@ def _surface_points(loaded: LoadedRun, scene: Scene, num_points: int, density_th
     if fill_info:
         thresholds["box_fill"] = fill_info
     return {"x": x, "labels": labels, "rgb": None, "thresholds": thresholds,
-            "link_radius_normalized": 2.0 * surface.voxel,
+            "link_radius_normalized": link,
             "surface": {"faces": int(len(surface.faces)), "seen_faces": int(len(seen)), **surface.stats}}
 
 
@@ -537,31 +537,29 @@ def box_face_fill(loaded: LoadedRun, scene: Scene, x_surface: np.ndarray, cams, 
     if spacing <= 0:
         return empty, empty, info
     gap = max(3.0 * spacing, float(min_gap))
-    # the label vote renders these views at this downscale too: one render each
-    total = float(sum(int(scene.cameras.width[i]) * int(scene.cameras.height[i]) for i in frames))
-    ds = max(1, int(math.ceil(math.sqrt(total / VOTE_MAX_RAYS))))
-    render = rendered_depth(loaded, scene, cache)
+    # these views without a depth map, at the downscale the label vote renders them at: one render each
+    depths = view_depths(scene, frames, rendered_depth(loaded, scene, cache))
     scale = float(loaded.norm.scale)
     lo, hi = loaded.norm.to_normalized(loaded.norm.aabb_world)
     near_face = margin * float(np.linalg.norm(hi - lo))
     tree = cKDTree(x_surface)
     pts, dirs = [], []
-    for i in frames:
-        depth = render(i, ds)
+    for i, (depth, ds) in depths.items():
         smooth = np.abs(depth - median_filter(depth, size=3)) <= 0.02 * depth + 0.25 * near_face / scale
         r, c = np.nonzero((depth > 0) & smooth)
         if not len(r):
             continue
-        o, d = cams.rays(i, c * ds + (ds - 1) / 2, r * ds + (ds - 1) / 2)
-        p = o + d * (depth[r, c] * scale / (d @ cams.c2w_opencv[i][:3, 2]))[:, None]
+        off = (ds - 1) / 2.0  # the centre of a ds x ds block, as a pixel index
+        p = cams.unproject(i, c * ds + off, r * ds + off, depth[r, c] * scale)
         keep = np.minimum(p - lo, hi - p).min(1) <= near_face
         keep[keep] = tree.query(p[keep], distance_upper_bound=gap)[0] > gap
-        pts.append(p[keep]), dirs.append(d[keep])
+        pts.append(p[keep]), dirs.append(view_directions(p[keep], cams.centers[i]))
     if not pts or not sum(len(p) for p in pts):
         return empty, empty, info
     pts, dirs = np.concatenate(pts), np.concatenate(dirs)
     first = np.unique(np.floor(pts / spacing).astype(np.int64), axis=0, return_index=True)[1]
-    info.update(points=int(len(first)), spacing=float(spacing), gap=float(gap), downscale=ds)
+    info.update(points=int(len(first)), spacing=float(spacing), gap=float(gap),
+                downscale=next(iter(depths.values()))[1])
     return pts[first], dirs[first], info
 
 

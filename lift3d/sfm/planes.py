@@ -771,11 +771,9 @@ def _wall_correction(line: FloorLine, directions: np.ndarray, known: "StuffPlane
                      max_tilt_deg: float) -> tuple[float, np.ndarray, float] | None:
     """``(more, normal, offset)`` that :func:`correct_walls` would move plane ``k`` to (``more``: how many more
     observations support it there), or None."""
-    cos = directions @ known.normal[k]
-    j = int(np.argmax(np.abs(cos)))
-    if np.abs(cos[j]) < np.cos(np.radians(max_tilt_deg)):
+    n = _nearest_direction(directions, known.normal[k], max_tilt_deg)
+    if n is None:
         return None
-    n = directions[j] * np.sign(cos[j])
     holds = np.isin(line.classes, list(known.classes[k]))
     if not holds.any():
         return None
@@ -997,11 +995,9 @@ def square_walls(planes: StuffPlanes, directions: np.ndarray, points: np.ndarray
     points = np.asarray(points, np.float64)
     turned = 0
     for k in range(len(planes)):
-        cos = directions @ planes.normal[k]
-        j = int(np.argmax(np.abs(cos)))
-        if np.abs(cos[j]) < np.cos(np.radians(max_turn_deg)) or np.abs(cos[j]) > np.cos(np.radians(0.05)):
+        n = _nearest_direction(directions, planes.normal[k], max_turn_deg)
+        if n is None or n @ planes.normal[k] > np.cos(np.radians(0.05)):  # too far to turn, or square already
             continue
-        n = directions[j] * np.sign(cos[j])
         e = -float(n @ planes.origin[k])
         near = np.abs(points @ planes.normal[k] + planes.offset[k]) < threshold
         near[near] = _beyond_hull(points[near], planes.origin[k], planes.basis[k], planes.hull[k])[1] <= 0
@@ -1010,6 +1006,16 @@ def square_walls(planes: StuffPlanes, directions: np.ndarray, points: np.ndarray
         planes = planes._moved(k, n, e)
         turned += 1
     return planes, turned
+
+
+def _nearest_direction(directions: np.ndarray, normal: np.ndarray, max_deg: float) -> np.ndarray | None:
+    """The one of ``directions`` (``[D, 3]`` unit wall normals) nearest ``normal``, signed to face its way, when
+    within ``max_deg`` of it; else None."""
+    cos = directions @ normal
+    j = int(np.argmax(np.abs(cos)))
+    if np.abs(cos[j]) < np.cos(np.radians(max_deg)):
+        return None
+    return directions[j] * np.sign(cos[j])
 
 
 def settled_offset(points: np.ndarray, normal: np.ndarray, offset: float, feet: np.ndarray, along: np.ndarray,
