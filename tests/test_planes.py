@@ -438,6 +438,31 @@ def test_a_window_no_plane_holds_takes_the_depth_of_the_wall_around_it_and_sky_a
     assert len(enclosed_segments(cams, 0, sky, [WINDOW], planes, stride=4)[0]) > 20  # the wall up to 2.5 m
 
 
+def test_a_window_in_a_second_wall_is_enclosed_but_pixels_with_targets_and_mostly_targeted_segments_are_not():
+    # The plane that holds the window class can be another wall's: the caller then passes held classes too,
+    # with the pixels that already have a target.
+    from lift3d.sfm.planes import enclosed_segments
+
+    cams, labels = _labelled_box_views()
+    xyz, cls, floor = _box_room_walls()
+    planes = fit_planes(np.r_[xyz, floor], np.r_[cls, np.full(3000, FLOOR)], [WALL, FLOOR, WINDOW], threshold=0.1,
+                        min_points=8, up=UP, margin=0.3)
+    sem = labels[0].copy()
+    sem[10:25, 35:60] = WINDOW
+    everything = enclosed_segments(cams, 0, sem, [WINDOW], planes, stride=4)
+    none_yet = enclosed_segments(cams, 0, sem, [WINDOW], planes, stride=4, targeted=np.zeros(sem.shape, bool))
+    assert len(everything[0]) > 20 and all(np.array_equal(a, b) for a, b in zip(everything, none_yet))
+    # a few of its pixels met a plane holding them already: they keep that target, the rest are enclosed
+    few = np.zeros(sem.shape, bool)
+    few[14, 38] = few[18, 42] = True
+    r, c, _, _ = enclosed_segments(cams, 0, sem, [WINDOW], planes, stride=4, targeted=few)
+    assert len(r) == len(everything[0]) - 2 and not few[r, c].any()
+    # most of the segment has targets (a floor segment a wall happens to surround): left alone
+    most = np.zeros(sem.shape, bool)
+    most[10:25, 35:55] = True
+    assert len(enclosed_segments(cams, 0, sem, [WINDOW], planes, stride=4, targeted=most)[0]) == 0
+
+
 def test_a_plane_reaches_only_a_margin_beyond_its_points():
     rng = np.random.default_rng(1)
     pts = np.c_[rng.uniform(0, 1, 50), rng.uniform(0, 1, 50), np.zeros(50)]
@@ -673,6 +698,11 @@ def test_the_ceiling_step_runs_with_or_without_the_floor_line(floor_room):
     unsquared = image_depth_targets(scene, frames, ImageDepthConfig(source="planes", plane_stride=2,
                                                                     plane_square_walls=False)).info["planes"]
     assert "walls_squared" not in unsquared
+    # so is the walls' reach past their margin (a bounded room)
+    assert "wall_reach" in unsquared
+    unreached = image_depth_targets(scene, frames, ImageDepthConfig(source="planes", plane_stride=2,
+                                                                    plane_wall_reach=False)).info["planes"]
+    assert "wall_reach" not in unreached
 
 
 def test_label_boundary_finds_where_rows_of_one_class_sit_on_another():
@@ -684,3 +714,49 @@ def test_label_boundary_finds_where_rows_of_one_class_sit_on_another():
     assert sorted(zip(r.tolist(), c.tolist())) == [(1, 0), (2, 1)]
     with pytest.raises(ValueError, match="same must be"):
         label_boundary(sem, [3], [1], same="left")
+
+
+def test_a_wall_reaches_along_its_line_past_a_wall_elsewhere_but_not_past_one_across_it_or_over_seen_floor():
+    from lift3d.sfm.planes import wall_reach
+
+    rng = np.random.default_rng(3)
+    # The long left wall x = -3 has points on y in [-4, -1.6] only (the rest two views see end-on); a short wall
+    # y = -1.3 stands on the right, x in [0.3, 3] (the inner wall of an L-shaped room).
+    left = np.c_[np.full(60, -3.0), rng.uniform(-4, -1.6, 60), rng.uniform(0, 2.5, 60)]
+    short = np.c_[rng.uniform(0.3, 3, 60), np.full(60, -1.3), rng.uniform(0, 2.5, 60)]
+    planes = fit_planes(np.r_[left, short], np.full(120, WALL), [WALL], threshold=0.05, margin=0.5, up=UP)
+    none = (np.zeros((0, 3)), np.zeros((0, 3)))
+    box = np.array([[-3.1, -4.4, -0.1], [3.1, 4.4, 2.9]])
+    eye = np.array([-1.0, -2.0, 1.5])
+    spot = np.array([-3.0, 2.0, 1.2])
+    d = ((spot - eye) / np.linalg.norm(spot - eye))[None]
+    # the view sees the room's floor past the short wall's line: the short wall does not reach across
+    g = np.mgrid[-2.9:2.91:0.1, -1.2:4.3:0.1].reshape(2, -1).T
+    seen = np.c_[g, np.zeros(len(g))]
+    room = (np.tile(eye, (len(seen), 1)), seen)
+    # the planes alone: 3 m past the points, the margin is 0.5 m, and the short wall's plane (taken as
+    # unbounded) separates the spot from the left wall's points
+    assert planes.first_hit(eye[None], d)[1][0] == -1
+    without_floor = wall_reach(planes, none, none, UP, 0.05, box).first_hit(eye[None], d)[1][0]
+    assert abs(planes.normal[without_floor][1]) > 0.99  # the short wall's line, 1.7 m past its points
+    t, k = wall_reach(planes, none, room, UP, 0.05, box).first_hit(eye[None], d)
+    assert k[0] >= 0 and np.allclose(eye + t[0] * d[0], spot, atol=1e-6)
+    assert abs(planes.offset[k[0]] * planes.normal[k[0]][0] - 3.0) < 0.05  # x = -3
+    # a wall across the room at y = -1.3 (points over its whole width) does stop it
+    across = np.c_[rng.uniform(-3, 3, 80), np.full(80, -1.3), rng.uniform(0, 2.5, 80)]
+    walled = fit_planes(np.r_[left, across], np.full(140, WALL), [WALL], threshold=0.05, margin=0.5, up=UP)
+    assert wall_reach(walled, none, room, UP, 0.05, box).first_hit(eye[None], d)[1][0] == -1
+
+    def also(cam, point):
+        return np.r_[room[0], [cam]], np.r_[room[1], [point]]
+
+    # floor seen behind the wall's line at that place along it: the wall is not there (an opening)
+    floor = also([-1.0, 2.0, 1.5], [-5.0, 2.0, 0.0])
+    assert wall_reach(planes, none, floor, UP, 0.05, box).first_hit(eye[None], d)[1][0] == -1
+    # ...but floor seen behind it 1 m further along does not stop it here
+    elsewhere = also([-1.0, 3.0, 1.5], [-5.0, 3.0, 0.0])
+    assert wall_reach(planes, none, elsewhere, UP, 0.05, box).first_hit(eye[None], d)[1][0] == k[0]
+    # a sight line through the spot (a point seen beyond it), or the spot outside the box: no reach
+    through = (eye[None], (eye + 1.5 * (spot - eye))[None])
+    assert wall_reach(planes, through, room, UP, 0.05, box).first_hit(eye[None], d)[1][0] == -1
+    assert wall_reach(planes, none, room, UP, 0.05, box - [[0, 0, 0], [0, 3, 0]]).first_hit(eye[None], d)[1][0] == -1

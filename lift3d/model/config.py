@@ -142,6 +142,14 @@ class ImageDepthConfig:
     """``planes``: the segments of a stuff class no plane holds (a window whose pattern stereo matched wrongly)
     that one plane surrounds in a view (most of their one-pixel ring meets it) take that plane's depth
     (:func:`lift3d.sfm.planes.enclosed_segments`)."""
+    plane_wall_reach: bool = True
+    """``planes``, bounded scenes: a wall's plane reaches past its points and margin, inside the scene box, to the
+    pixels of its class, until another plane's extent, a sight line through it, or floor a view sees behind its
+    line stops it (a long wall that two views see end-on; :func:`lift3d.sfm.planes.wall_reach`)."""
+    plane_enclosed_held: bool = True
+    """``planes``, with ``plane_enclosed``: classes a plane holds are enclosed too, in the segments whose pixels
+    mostly met no plane holding their class (a window in a second wall, when the plane holding the window class
+    is the first wall's)."""
     plane_standing: bool = True
     """``planes``: the pixels of a thing the 2D labels put directly on the floor get the depth of an upright face
     rising from where that boundary's ray meets the floor plane, up to the height the other views' labels

@@ -1061,6 +1061,147 @@ def settled_offset(points: np.ndarray, normal: np.ndarray, offset: float, feet: 
     return float(offset - shift * side)
 
 
+@dataclass
+class WallReach:
+    """Where walls reach past their margin, along a wall that few views see (see :func:`wall_reach`).
+
+    Attributes
+    ----------
+    planes : StuffPlanes
+        The planes with an unbounded margin, and the cells of it that sight lines pass through.
+    margin : float
+        The planes' own margin: another plane's extent within it separates a wall from its reach.
+    walls : np.ndarray
+        ``[P] bool``: vertical planes (only they reach).
+    along : np.ndarray
+        ``[P, 3]`` each wall's horizontal direction in its plane.
+    behind : list of np.ndarray
+        Per plane, sorted ``int64`` columns (``floor(along · x / cell)``) where a view sees floor behind it.
+    box : np.ndarray
+        ``[2, 3]`` the region reach stays in (world units).
+    """
+
+    planes: StuffPlanes
+    margin: float
+    walls: np.ndarray
+    along: np.ndarray
+    behind: list
+    box: np.ndarray
+
+    def first_hit(self, origins: np.ndarray, directions: np.ndarray, min_cos: float = 0.1,
+                  t_min: float = 1e-6) -> tuple[np.ndarray, np.ndarray]:
+        """Where each ray first meets a wall outside its points' hull, where the wall still reaches.
+
+        A spot beyond the hull counts when no other plane's extent (hull and margin) lies between it and the
+        wall's points (the segment from the wall's origin to it crosses no plane there), no sight line
+        passes through its cell, no view sees floor behind its column, and it lies in ``box``.
+        Same returns as :meth:`StuffPlanes.first_hit` (``inf`` / ``-1`` where no wall reaches).
+        """
+        p = self.planes
+        r = len(origins)
+        t_best = np.full(r, np.inf)
+        best = np.full(r, -1, np.int64)
+        for k in np.flatnonzero(self.walls):
+            t, cos = ray_plane_distance(origins, directions, p.normal[k], p.offset[k])
+            idx = np.flatnonzero((np.abs(cos) >= min_cos) & (t > t_min) & (t < t_best))
+            if not len(idx):
+                continue
+            x = origins[idx] + t[idx, None] * directions[idx]
+            p2, beyond = _beyond_hull(x, p.origin[k], p.basis[k], p.hull[k])
+            ok = (beyond > 0) & np.all((x >= self.box[0]) & (x <= self.box[1]), axis=1)
+            for j in range(len(p)):
+                if j == k or not ok.any():
+                    continue
+                # the spot and the wall's points on either side of plane j, where plane j's extent is
+                a = p.origin[k] @ p.normal[j] + p.offset[j]
+                b = x @ p.normal[j] + p.offset[j]
+                crossing = np.flatnonzero(ok & (np.sign(b) != np.sign(a)) & (b != 0))
+                if not len(crossing):
+                    continue
+                at = p.origin[k] + (a / (a - b[crossing]))[:, None] * (x[crossing] - p.origin[k])
+                ok[crossing[_beyond_hull(at, p.origin[j], p.basis[j], p.hull[j])[1] <= self.margin]] = False
+            if p.seen_through is not None and ok.any():
+                ok[ok] = ~np.isin(_cell_keys(np.floor(p2[ok] / p.cell).astype(np.int64)), p.seen_through[k])
+            if len(self.behind[k]) and ok.any():
+                ok[ok] = ~np.isin(np.floor(x[ok] @ self.along[k] / p.cell).astype(np.int64), self.behind[k])
+            idx = idx[ok]
+            t_best[idx] = t[idx]
+            best[idx] = k
+        return t_best, best
+
+
+def wall_reach(planes: StuffPlanes, sightlines, floor_sightlines, up: np.ndarray, threshold: float,
+               box: np.ndarray, max_tilt_deg: float = 10.0) -> WallReach:
+    """How far the walls among ``planes`` reach past their margin.
+
+    A wall's plane reaches as far past its points as its margin (``planes.margin``). A long wall that only
+    two views see end-on, from across the room, has no points on most of its length (stereo at a grazing
+    angle, its foot too far to place), so its pixels there got no target although its plane is right. Walls
+    are long and straight; what stops one is another wall, or open space. So a wall reaches on, inside
+    ``box``, until
+
+    * another plane's extent lies between the spot and the wall's points (the inner wall of an L-shaped room
+      stops at the wall across its end),
+    * a sight line passes through the spot's cell (as :meth:`StuffPlanes.with_seen_through`, over the whole
+      plane), or
+    * a view sees floor behind the wall at that place along it (``floor_sightlines``: the floor plane's points
+      under floor-labelled pixels, more than ``threshold`` behind the wall): a wall stands on the floor from
+      the floor to the ceiling, so floor seen past its line means it is not there, at any height. Plain walls
+      give stereo few sight lines; the floor is labelled in every view.
+
+    Parameters
+    ----------
+    planes : StuffPlanes
+        The planes (their ``seen_through`` is not used).
+    sightlines, floor_sightlines : (np.ndarray, np.ndarray)
+        ``[M, 3]`` camera centres and ``[M, 3]`` the points they see: every observation, and the floor.
+    up : np.ndarray
+        The scene's up direction.
+    threshold : float
+        The plane threshold (world units); cells and columns are ``2 × threshold``.
+    box : np.ndarray
+        ``[2, 3]`` min and max corner that reach stays in.
+
+    Examples
+    --------
+    A wall x = -3 whose points stop at y = 0, in a room 8 m long, and a wall x = 3 whose points stop there too
+    but behind whose line a view sees floor at y = 2 (an opening): the first reaches on, the second does not.
+
+    >>> rng = np.random.default_rng(0)
+    >>> left = np.c_[np.full(40, -3.0), rng.uniform(-4, 0, 40), rng.uniform(0, 2.5, 40)]
+    >>> right = left * [-1, 1, 1]
+    >>> planes = fit_planes(np.r_[left, right], np.ones(80, int), [1], threshold=0.05, margin=0.5)
+    >>> eye = np.array([0.0, 0.0, 1.5])
+    >>> floor = (np.array([eye]), np.array([[6.0, 4.0, 0.0]]))  # crosses x = 3 at y = 2
+    >>> reach = wall_reach(planes, (np.zeros((0, 3)), np.zeros((0, 3))), floor, np.array([0, 0, 1.0]), 0.05,
+    ...                    np.array([[-3.1, -4.1, -0.1], [3.1, 4.1, 3.0]]))
+    >>> d = np.array([[-3.0, 2.0, 0.0], [3.0, 2.0, 0.0]]) / np.sqrt(13)
+    >>> t, k = reach.first_hit(np.tile(eye, (2, 1)), d)
+    >>> float(planes.offset[k[0]]), int(k[1]), round(float(t[0]), 3)  # the left wall x = -3; the right: none
+    (3.0, -1, 3.606)
+    >>> planes.first_hit(np.tile(eye, (2, 1)), d)[1].tolist()  # 2 m past the points, 0.5 m margin
+    [-1, -1]
+    """
+    up = np.asarray(up, np.float64) / np.linalg.norm(up)
+    far = replace(planes, margin=np.inf, seen_through=None).with_seen_through(*sightlines, threshold)
+    walls = planes.vertical(up, max_tilt_deg) if len(planes) else np.zeros(0, bool)
+    along = np.zeros((len(planes), 3))
+    behind = []
+    fc, fp = (np.asarray(a, np.float64) for a in floor_sightlines)
+    for k in range(len(planes)):
+        if not walls[k]:
+            behind.append(np.zeros(0, np.int64))
+            continue
+        h = np.cross(up, planes.normal[k])
+        along[k] = h / np.linalg.norm(h)
+        x = _crossing_points((fc, fp), planes.normal[k], planes.offset[k], threshold)
+        _, beyond = _beyond_hull(x, planes.origin[k], planes.basis[k], planes.hull[k])
+        col = np.floor(x[beyond > 0] @ along[k] / far.cell).astype(np.int64)
+        # a column's neighbours too: the floor is seen through the wall's line between sampled pixels
+        behind.append(np.unique(np.r_[col - 1, col, col + 1]))
+    return WallReach(far, float(planes.margin), walls, along, behind, np.asarray(box, np.float64))
+
+
 def ceiling_height(cameras, frames, labels: dict[int, np.ndarray], planes: "StuffPlanes", normal: np.ndarray,
                    offset: float, ceiling_classes, threshold: float, min_points: int, min_rows: int = 2
                    ) -> tuple[float | None, int]:
@@ -1140,7 +1281,8 @@ def ceiling_height(cameras, frames, labels: dict[int, np.ndarray], planes: "Stuf
 def ceiling_points(cameras, frames, labels: dict[int, np.ndarray], normal: np.ndarray, offset: float,
                    ceiling_classes, stride: int = 4) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Where the rays of the pixels the labels call ceiling (every ``stride``-th row and column) meet the ceiling
-    plane ``normal · x + offset = 0``: points on a plain ceiling, for the plane fit. Returns ``xyz``,
+    plane ``normal · x + offset = 0``: points on a plain ceiling, for the plane fit (or the floor's, for any
+    level plane and its classes). Returns ``xyz``,
     ``classes`` and the camera centres (sight lines), as :func:`floor_boundary_points`."""
     normal = np.asarray(normal, np.float64)
     ids = [int(c) for c in ceiling_classes]
@@ -1163,7 +1305,8 @@ def ceiling_points(cameras, frames, labels: dict[int, np.ndarray], normal: np.nd
 
 
 def enclosed_segments(cameras, i: int, sem: np.ndarray, classes, planes: StuffPlanes, stride: int = 4,
-                      min_share: float = 0.6, min_ring: int = 8) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+                      min_share: float = 0.6, min_ring: int = 8, targeted: np.ndarray | None = None,
+                      max_targeted: float = 0.5) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Pixels of segments that one plane surrounds in view ``i``, on that plane: a window in a wall.
 
     A stuff class no plane holds (a window with a repeating pattern, which stereo matches wrongly, so no plane
@@ -1174,6 +1317,11 @@ def enclosed_segments(cameras, i: int, sem: np.ndarray, classes, planes: StuffPl
     the depth where their rays meet that plane, inside the hull of its points (no margin): sky above the
     top of a building's face is not in that face's hull.
 
+    With ``targeted``, held classes can be enclosed too: a window in a second wall, when the plane that holds
+    the window class is the first wall. Pixels that already have a target keep it, and a segment of which more
+    than ``max_targeted`` of the kept pixels already have one is left alone (a floor segment that a wall's
+    plane happens to surround is the floor plane's).
+
     Parameters
     ----------
     cameras : lift3d.data.cameras.Cameras
@@ -1182,7 +1330,7 @@ def enclosed_segments(cameras, i: int, sem: np.ndarray, classes, planes: StuffPl
     sem : np.ndarray
         ``[H, W]`` its semantic labels (0 = void).
     classes : iterable of int
-        Classes whose segments may be enclosed (stuff that no plane holds).
+        Classes whose segments may be enclosed (stuff that no plane holds; any stuff with ``targeted``).
     planes : StuffPlanes
     stride : int
         Pixels of the segments kept: rows and columns ``stride // 2 + k · stride`` (as the plane targets).
@@ -1190,6 +1338,10 @@ def enclosed_segments(cameras, i: int, sem: np.ndarray, classes, planes: StuffPl
         Share of the ring that must meet the one plane.
     min_ring : int
         Fewest ring pixels (a smaller segment is noise).
+    targeted : np.ndarray, optional
+        ``bool [H, W]``: pixels that already have a target (they are not returned).
+    max_targeted : float
+        With ``targeted``: most share of a segment's kept pixels that may already have a target.
 
     Returns
     -------
@@ -1241,6 +1393,11 @@ def enclosed_segments(cameras, i: int, sem: np.ndarray, classes, planes: StuffPl
                 continue
             pr, pc = np.nonzero(segments[stride // 2::stride, stride // 2::stride] == j)
             pr, pc = pr * stride + stride // 2, pc * stride + stride // 2
+            if targeted is not None and len(pr):
+                done = targeted[pr, pc]
+                if done.mean() > max_targeted:
+                    continue
+                pr, pc = pr[~done], pc[~done]
             if not len(pr):
                 continue
             po, pd = cameras.rays(i, pc, pr)

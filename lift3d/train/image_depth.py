@@ -245,11 +245,14 @@ def _plane_rows(scene: Scene, sparse: SparsePoints, dense: DenseDepth, frames: n
     planes are fitted once more with the wall points the labels' wall-on-floor boundaries give. With
     ``plane_standing``, the pixels of things get the depth of the upright faces rising from where the labels put
     them on the floor plane (:mod:`lift3d.sfm.standing`), unless the plane sweep's depths on them disagree.
+    With ``plane_wall_reach`` (bounded scenes), stuff pixels that met no plane of their class get a wall's plane
+    past its margin where it still reaches (:func:`lift3d.sfm.planes.wall_reach`); with ``plane_enclosed``,
+    segments a plane surrounds get its depth (:func:`lift3d.sfm.planes.enclosed_segments`).
     ``labels``: frame → semantic pseudo-labels of every frame of ``frames``."""
     # here, not at module level: keeps `import lift3d.train` cheap (lift3d.sfm loads OpenCV)
     from lift3d.sfm.mvs import scene_up
     from lift3d.sfm.planes import enclosed_segments, fit_planes, floor_boundary_points, label_support
-    from lift3d.sfm.planes import point_classes, square_walls, wall_directions
+    from lift3d.sfm.planes import ceiling_points, point_classes, square_walls, wall_directions, wall_reach
     from lift3d.sfm.standing import standing_faces, stereo_agreement
 
     empty = (np.zeros(0, np.int64),) + (np.zeros(0, np.float32),) * 4 + (np.zeros(0, bool),)
@@ -333,6 +336,18 @@ def _plane_rows(scene: Scene, sparse: SparsePoints, dense: DenseDepth, frames: n
         planes, found = _ceiling_plane(scene, frames, labels, planes, up, stuff, cfg, diag, min_points,
                                        (cams, seen_xyz))
         info.update(found)
+    reach = None
+    box = scene.scene_box
+    if cfg.plane_wall_reach and len(planes) and box is not None and box.type == "bounded":
+        # a long wall few views see end-on has points on part of its length only (docs/sfm.md)
+        ground = _floor_plane(planes, up)
+        if ground is not None:
+            f, fn, fd = ground
+            floor_xyz, _, floor_cams = ceiling_points(scene.cameras, frames, labels, fn, fd, planes.classes[f],
+                                                      stride=max(1, int(cfg.plane_stride)))
+            threshold = cfg.plane_threshold * diag
+            reach = wall_reach(planes, (cams, seen_xyz), (floor_cams, floor_xyz), fn, threshold,
+                               np.asarray(box.aabb, np.float64) + [[-threshold] * 3, [threshold] * 3])
     if cfg.plane_margin_seen_through and len(planes):
         planes = planes.with_seen_through(cams, seen_xyz, cfg.plane_threshold * diag)
     info.update(planes=len(planes), classes=[sorted(c) for c in planes.classes], stuff_points=n_stuff,
@@ -344,7 +359,9 @@ def _plane_rows(scene: Scene, sparse: SparsePoints, dense: DenseDepth, frames: n
     floor_sigma = 0.5 * cfg.plane_threshold * diag
     out = []
     dropped = enclosed = 0
-    unheld = sorted(set(stuff) - set().union(*planes.classes)) if cfg.plane_enclosed else []
+    held = set().union(*planes.classes)
+    # a window in a second wall: the plane holding the window class is the first wall's
+    enclosable = sorted(set(stuff) if cfg.plane_enclosed_held else set(stuff) - held) if cfg.plane_enclosed else []
     faces = None
     floor = _floor_plane(planes, up) if cfg.plane_standing and scene.thing_ids else None
     if floor is not None:
@@ -361,7 +378,7 @@ def _plane_rows(scene: Scene, sparse: SparsePoints, dense: DenseDepth, frames: n
         info["standing_faces"] = int(len(faces) - refuted.sum())
         info["standing_faces_refuted"] = int(refuted.sum())
         faces = faces.subset(~refuted)
-    standing = 0
+    standing = reached = 0
     for i in targets_for:
         i = int(i)
         sem = labels[i]  # targets_for is a subset of the training frames
@@ -369,7 +386,7 @@ def _plane_rows(scene: Scene, sparse: SparsePoints, dense: DenseDepth, frames: n
         r, c = np.mgrid[stride // 2:h:stride, stride // 2:w:stride]
         r, c = r.ravel(), c.ravel()
         cls = sem[r, c]
-        keep = np.isin(cls, sorted(set().union(*planes.classes)))
+        keep = np.isin(cls, sorted(held))
         r, c, cls = r[keep], c[keep], cls[keep]
         if not len(r):
             continue
@@ -377,6 +394,13 @@ def _plane_rows(scene: Scene, sparse: SparsePoints, dense: DenseDepth, frames: n
         t, k = planes.first_hit(o, d)
         ok = k >= 0
         ok &= planes.holds(k, cls)
+        if reach is not None and not ok.all():
+            # pixels of a wall past its points and margin, where the wall still reaches
+            idx = np.flatnonzero(~ok)
+            rt, rk = reach.first_hit(o[idx], d[idx])
+            on = (rt < t[idx]) & planes.holds(rk, cls[idx])
+            t[idx[on]], k[idx[on]], ok[idx[on]] = rt[on], rk[on], True
+            reached += int(on.sum())
         if cfg.plane_label_support > 0 and ok.any():
             # a wardrobe one view labels wall would get the wall's depth: the views that see that spot of the
             # wall label what stands in front of it
@@ -388,9 +412,12 @@ def _plane_rows(scene: Scene, sparse: SparsePoints, dense: DenseDepth, frames: n
             dropped += int(refuted.sum())
         axis = scene.cameras.c2w_opencv[i][:3, 2]
         r, c, k, t, d = r[ok], c[ok], k[ok], t[ok], d[ok]
-        if unheld:
-            # a window no plane holds, inside a wall: the wall's depth (lift3d.sfm.planes.enclosed_segments)
-            er, ec, et, ek = enclosed_segments(scene.cameras, i, sem, unheld, planes, stride)
+        if enclosable:
+            # a window inside a wall whose plane does not hold it: the wall's depth
+            # (lift3d.sfm.planes.enclosed_segments); pixels that met a plane holding their class keep that depth
+            targeted = np.zeros(sem.shape, bool)
+            targeted[r, c] = True
+            er, ec, et, ek = enclosed_segments(scene.cameras, i, sem, enclosable, planes, stride, targeted=targeted)
             if len(er):
                 r, c, t, k = np.r_[r, er], np.r_[c, ec], np.r_[t, et], np.r_[k, ek]
                 d = np.r_[d, scene.cameras.rays(i, ec, er)[1]]
@@ -422,6 +449,8 @@ def _plane_rows(scene: Scene, sparse: SparsePoints, dense: DenseDepth, frames: n
         info["enclosed"] = enclosed
     if floor is not None:
         info["standing"] = standing
+    if reach is not None:
+        info["wall_reach"] = reached
     return rows, info
 
 
