@@ -436,6 +436,11 @@ def test_a_window_no_plane_holds_takes_the_depth_of_the_wall_around_it_and_sky_a
                       threshold=0.1, min_points=8, up=UP, margin=0.3)
     assert len(enclosed_segments(cams, 0, sky, [WINDOW], face, stride=4)[0]) == 0
     assert len(enclosed_segments(cams, 0, sky, [WINDOW], planes, stride=4)[0]) > 20  # the wall up to 2.5 m
+    # In a room (margin=True) a window high on a wall whose points stop below it takes the wall's depth as far
+    # as the plane's margin (0.3 m) reaches: up to 1.8 m here, not above.
+    r, c, t, _ = enclosed_segments(cams, 0, sky, [WINDOW], face, stride=4, margin=True)
+    hit = cams.rays(0, c, r)[0] + t[:, None] * cams.rays(0, c, r)[1]
+    assert len(r) > 5 and hit[:, 2].max() <= 1.5 + 0.3 + 0.1 and np.allclose(hit[:, 0], 3.0, atol=0.05)
 
 
 def test_a_window_in_a_second_wall_is_enclosed_but_pixels_with_targets_and_mostly_targeted_segments_are_not():

@@ -142,6 +142,10 @@ class ImageDepthConfig:
     """``planes``: the segments of a stuff class no plane holds (a window whose pattern stereo matched wrongly)
     that one plane surrounds in a view (most of their one-pixel ring meets it) take that plane's depth
     (:func:`lift3d.sfm.planes.enclosed_segments`)."""
+    plane_enclosed_margin: bool = True
+    """``planes``, with ``plane_enclosed``, bounded scenes: an enclosed segment's pixels take the plane's depth within
+    its margin too, not only over the hull of its points (a window high on a wall whose points stop below it;
+    outdoors, sky above a building's face must not)."""
     plane_wall_reach: bool = True
     """``planes``, bounded scenes: a wall's plane reaches past its points and margin, inside the scene box, to the
     pixels of its class, until another plane's extent, a sight line through it, or floor a view sees behind its

@@ -1306,7 +1306,8 @@ def ceiling_points(cameras, frames, labels: dict[int, np.ndarray], normal: np.nd
 
 def enclosed_segments(cameras, i: int, sem: np.ndarray, classes, planes: StuffPlanes, stride: int = 4,
                       min_share: float = 0.6, min_ring: int = 8, targeted: np.ndarray | None = None,
-                      max_targeted: float = 0.5) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+                      max_targeted: float = 0.5, margin: bool = False
+                      ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Pixels of segments that one plane surrounds in view ``i``, on that plane: a window in a wall.
 
     A stuff class no plane holds (a window with a repeating pattern, which stereo matches wrongly, so no plane
@@ -1342,6 +1343,10 @@ def enclosed_segments(cameras, i: int, sem: np.ndarray, classes, planes: StuffPl
         ``bool [H, W]``: pixels that already have a target (they are not returned).
     max_targeted : float
         With ``targeted``: most share of a segment's kept pixels that may already have a target.
+    margin : bool
+        Pixels whose rays meet the plane within its margin count too (where :meth:`StuffPlanes.first_hit`
+        meets it first). For a room, where no sky lies above a wall: a window high on a wall whose points stop
+        below it.
 
     Returns
     -------
@@ -1406,7 +1411,10 @@ def enclosed_segments(cameras, i: int, sem: np.ndarray, classes, planes: StuffPl
                 ok = np.isfinite(t) & (t > 0) & (np.abs(cos) >= 0.1)
             _, beyond = _beyond_hull(po[ok] + t[ok, None] * pd[ok], planes.origin[host], planes.basis[host],
                                      planes.hull[host])
-            ok[ok] = beyond <= 0
+            inside = beyond <= 0
+            if margin and not inside.all():
+                inside |= planes.first_hit(po[ok], pd[ok])[1] == host
+            ok[ok] = inside
             out.append((pr[ok], pc[ok], t[ok], np.full(int(ok.sum()), host, np.int64)))
     if not out:
         return empty, empty, np.zeros(0), empty

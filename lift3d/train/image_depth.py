@@ -337,8 +337,8 @@ def _plane_rows(scene: Scene, sparse: SparsePoints, dense: DenseDepth, frames: n
                                        (cams, seen_xyz))
         info.update(found)
     reach = None
-    box = scene.scene_box
-    if cfg.plane_wall_reach and len(planes) and box is not None and box.type == "bounded":
+    bounded = scene.scene_box is not None and scene.scene_box.type == "bounded"
+    if cfg.plane_wall_reach and len(planes) and bounded:
         # a long wall few views see end-on has points on part of its length only (docs/sfm.md)
         ground = _floor_plane(planes, up)
         if ground is not None:
@@ -347,7 +347,7 @@ def _plane_rows(scene: Scene, sparse: SparsePoints, dense: DenseDepth, frames: n
                                                       stride=max(1, int(cfg.plane_stride)))
             threshold = cfg.plane_threshold * diag
             reach = wall_reach(planes, (cams, seen_xyz), (floor_cams, floor_xyz), fn, threshold,
-                               np.asarray(box.aabb, np.float64) + [[-threshold] * 3, [threshold] * 3])
+                               np.asarray(scene.scene_box.aabb, np.float64) + [[-threshold] * 3, [threshold] * 3])
     if cfg.plane_margin_seen_through and len(planes):
         planes = planes.with_seen_through(cams, seen_xyz, cfg.plane_threshold * diag)
     info.update(planes=len(planes), classes=[sorted(c) for c in planes.classes], stuff_points=n_stuff,
@@ -417,7 +417,8 @@ def _plane_rows(scene: Scene, sparse: SparsePoints, dense: DenseDepth, frames: n
             # (lift3d.sfm.planes.enclosed_segments); pixels that met a plane holding their class keep that depth
             targeted = np.zeros(sem.shape, bool)
             targeted[r, c] = True
-            er, ec, et, ek = enclosed_segments(scene.cameras, i, sem, enclosable, planes, stride, targeted=targeted)
+            er, ec, et, ek = enclosed_segments(scene.cameras, i, sem, enclosable, planes, stride, targeted=targeted,
+                                               margin=bounded and cfg.plane_enclosed_margin)
             if len(er):
                 r, c, t, k = np.r_[r, er], np.r_[c, ec], np.r_[t, et], np.r_[k, ek]
                 d = np.r_[d, scene.cameras.rays(i, ec, er)[1]]
