@@ -765,3 +765,23 @@ def test_a_wall_reaches_along_its_line_past_a_wall_elsewhere_but_not_past_one_ac
     through = (eye[None], (eye + 1.5 * (spot - eye))[None])
     assert wall_reach(planes, through, room, UP, 0.05, box).first_hit(eye[None], d)[1][0] == -1
     assert wall_reach(planes, none, room, UP, 0.05, box - [[0, 0, 0], [0, 3, 0]]).first_hit(eye[None], d)[1][0] == -1
+
+
+def test_a_wall_does_not_move_where_the_views_see_through_it():
+    # The floor lines put the far wall at x = 6, and stereo at 6.25. When the views see points at 6.25 (the wall's
+    # texture, through where the move would put it), the labels' boundary is what is off, and the wall stays.
+    cams, labels = _corridor_views([2, 1, -1, 0, 2, -2, 1, 0], start=(1.0, 3.0))
+    known, _ = _side_walls_and_floor()
+    planes = _with_far_wall(known, 6.25)
+    line = floor_line(cams, range(8), labels, UP, 0.0, [FLOOR], [WALL])
+    dirs = np.array([[1.0, 0, 0], [0, 1.0, 0]])
+    rng = np.random.default_rng(5)
+    eyes = cams.centers[rng.integers(0, 8, 200)]
+    on = np.c_[np.zeros(200), rng.uniform(-1.5, 1.5, 200), rng.uniform(0.3, 2.2, 200)]
+    k = len(planes) - 1
+    stay, _ = correct_walls(line, dirs, planes, threshold=0.1, sightlines=(eyes, on + [6.25, 0, 0]))
+    assert stay.offset[k] == planes.offset[k] and np.array_equal(stay.normal[k], planes.normal[k])
+    # points at 6.0 (where the floor lines put it) agree with the move, and so does having no sight lines at all
+    for sightlines in ((eyes, on + [6.0, 0, 0]), None):
+        moved, _ = correct_walls(line, dirs, planes, threshold=0.1, sightlines=sightlines)
+        assert -moved.offset[k] == pytest.approx(6.0, abs=0.05)

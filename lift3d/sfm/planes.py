@@ -712,7 +712,8 @@ def floor_line_walls(line: FloorLine, directions: np.ndarray, known: "StuffPlane
 
 def correct_walls(line: FloorLine, directions: np.ndarray, known: "StuffPlanes", threshold: float,
                   pixel_tolerance: float = 1.0, min_views: int = 3, view_share: float = 0.05, reach: float = 4.0,
-                  min_gain: float = 1.5, max_tilt_deg: float = 10.0) -> tuple["StuffPlanes", int]:
+                  min_gain: float = 1.5, max_tilt_deg: float = 10.0, sightlines=None,
+                  max_crossing_share: float = 1.0) -> tuple["StuffPlanes", int]:
     """``known`` with each wall moved to where the views' wall-on-floor boundaries put it, when they
     clearly disagree with it, and how many moved.
 
@@ -728,7 +729,12 @@ def correct_walls(line: FloorLine, directions: np.ndarray, known: "StuffPlanes",
     a view that sees no other wall cannot tell a shifted boundary from a misplaced wall and takes no part. A
     wrong wall skews the shift measured against it, so the wall that gains most observations moves first and
     the rest are judged again, until none qualifies. The plane keeps its extent (its hull in its own 2D
-    coordinates), classes and residual.
+    coordinates), classes and residual. With ``sightlines``, a wall does not move to where more sight lines
+    cross it inside its extent than ``max_crossing_share`` times those that end on it, and more than cross it
+    where it is: the labels' boundary can sit off a wall's foot along a whole stretch (a sofa's base, a
+    window's sill). A reported room's right wall moved 12–15 cm into the room, from a plane 0.02 of its sight
+    lines crossed to one they crossed 2.6 times as often as they ended on it. (A right move of another wall
+    of that room raised its share 0.11 → 0.43: at the true wall it is 0.26, so a share of 0.2 is no test here.)
 
     Parameters
     ----------
@@ -740,6 +746,8 @@ def correct_walls(line: FloorLine, directions: np.ndarray, known: "StuffPlanes",
         The planes found so far.
     threshold : float
         The plane threshold (world units); the offset grid is a quarter of it.
+    sightlines : (np.ndarray, np.ndarray), optional
+        ``[M, 3]`` camera centres and the points they see.
 
     Returns
     -------
@@ -750,13 +758,25 @@ def correct_walls(line: FloorLine, directions: np.ndarray, known: "StuffPlanes",
         return known, 0
     directions = np.asarray(directions, np.float64).reshape(-1, 3)
     moved: set[int] = set()
+    refuted: set[int] = set()
+
+    def share(planes: "StuffPlanes", k: int) -> float:
+        crossings, support = _crossings(sightlines, planes.normal[k], planes.offset[k],
+                                        (planes.origin[k], planes.basis[k], planes.hull[k]), threshold)
+        return crossings / max(support, 1)
+
     while True:
         best = None
         for k in range(len(known)):
-            if k in moved:
+            if k in moved or k in refuted:
                 continue
             found = _wall_correction(line, directions, known, k, threshold, pixel_tolerance, min_views, view_share,
                                      reach, min_gain, max_tilt_deg)
+            if found is not None and sightlines is not None:
+                there = share(known._moved(k, found[1], found[2]), k)
+                if there > max_crossing_share and there > share(known, k):
+                    refuted.add(k)
+                    found = None
             if found is not None and (best is None or found[0] > best[0]):
                 best = (*found, k)
         if best is None:

@@ -528,7 +528,8 @@ def _floor_line_walls(scene: Scene, frames, labels, planes, floor, stuff, cfg: I
     threshold = cfg.plane_threshold * diag
     moved = 0
     if cfg.plane_floor_line_correct:
-        planes, moved = correct_walls(line, directions, planes, threshold, pixel_tolerance=cfg.plane_line_pixels)
+        planes, moved = correct_walls(line, directions, planes, threshold, pixel_tolerance=cfg.plane_line_pixels,
+                                      sightlines=sightlines)
     found = floor_line_walls(line, directions, planes, threshold, pixel_tolerance=cfg.plane_line_pixels)
     planes, kept = add_walls(planes, scene.cameras, labels, line, found, n, max_height, threshold, sightlines)
     return planes, {"floor_line_walls": kept, "floor_line_moved": moved, "floor_line_observations": int(len(line))}
