@@ -129,6 +129,11 @@ class StuffPlanes:
             blocked.append(np.unique(_cell_keys(np.floor(p2 / cell).astype(np.int64))))
         return replace(self, seen_through=blocked, cell=cell)
 
+    def seen_through_at(self, k: int, p2: np.ndarray) -> np.ndarray:
+        """``[N] bool``: sight lines pass through the cells of plane ``k`` at its 2D points ``p2`` (``[N, 2]``;
+        needs :meth:`with_seen_through`)."""
+        return np.isin(_cell_keys(np.floor(p2 / self.cell).astype(np.int64)), self.seen_through[k])
+
     def with_plane(self, normal: np.ndarray, offset: float, points: np.ndarray, classes: np.ndarray,
                    threshold: float) -> "StuffPlanes":
         """These planes and one more, ``normal · x + offset = 0``, over the hull of ``points`` of ``classes``
@@ -216,7 +221,7 @@ class StuffPlanes:
                     side = np.sign(self.origin[k] @ self.normal[j] + self.offset[j])
                     ext &= (p @ self.normal[j] + self.offset[j]) * side > -1e-9
             if self.seen_through is not None and ext.any():
-                ext[ext] = ~np.isin(_cell_keys(np.floor(p2[ext] / self.cell).astype(np.int64)), self.seen_through[k])
+                ext[ext] = ~self.seen_through_at(k, p2[ext])
             inside &= (beyond <= 0) | ext
             idx = idx[inside]
             t_best[idx] = t[idx]
@@ -1141,7 +1146,7 @@ class WallReach:
                 at = p.origin[k] + (a / (a - b[crossing]))[:, None] * (x[crossing] - p.origin[k])
                 ok[crossing[_beyond_hull(at, p.origin[j], p.basis[j], p.hull[j])[1] <= self.margin]] = False
             if p.seen_through is not None and ok.any():
-                ok[ok] = ~np.isin(_cell_keys(np.floor(p2[ok] / p.cell).astype(np.int64)), p.seen_through[k])
+                ok[ok] = ~p.seen_through_at(k, p2[ok])
             if len(self.behind[k]) and ok.any():
                 ok[ok] = ~np.isin(np.floor(x[ok] @ self.along[k] / p.cell).astype(np.int64), self.behind[k])
             idx = idx[ok]
@@ -1204,7 +1209,7 @@ def wall_reach(planes: StuffPlanes, sightlines, floor_sightlines, up: np.ndarray
     """
     up = np.asarray(up, np.float64) / np.linalg.norm(up)
     far = replace(planes, margin=np.inf, seen_through=None).with_seen_through(*sightlines, threshold)
-    walls = planes.vertical(up, max_tilt_deg) if len(planes) else np.zeros(0, bool)
+    walls = planes.vertical(up, max_tilt_deg)
     along = np.zeros((len(planes), 3))
     behind = []
     fc, fp = (np.asarray(a, np.float64) for a in floor_sightlines)
