@@ -98,9 +98,10 @@ def test_render_rays_agree_with_render_and_chunks_change_nothing(run):
 
 def test_query_points_at_exported_points_give_the_exported_labels(run, tiny_run, tmp_path):
     # without the instance clean-up, which folds crumbs, unsure and unconfirmed instances into their
-    # neighbour's class on purpose (docs/api.md)
+    # neighbour's class on purpose (docs/api.md), and without the label steps that take a point's class from
+    # the training views' labels or its neighbours' orientation
     export_run(tiny_run, tmp_path, pointcloud=True, num_points=3000, device="cpu", merge_fragments=False,
-               crumb_points=0, min_instance_confidence=0.0, min_support_views=0)
+               crumb_points=0, min_instance_confidence=0.0, min_support_views=0, view_vote=False, orient_stuff=False)
     pts = lift3d.load_labelled_points(tmp_path)
     q = run.query_points(pts.xyz)
     assert np.array_equal(q["semantic"], pts.semantic)

@@ -52,6 +52,8 @@ def test_unknown_setting_is_a_clear_error():
         load_config("fast", overrides={"sampling": {"render_label_coverage": 1.5}})
     with pytest.raises(InputError, match=r"sampling.render_color_coverage: must be in \[0, 1\], got -0.1"):
         load_config("fast", overrides={"sampling": {"render_color_coverage": -0.1}})
+    with pytest.raises(InputError, match=r"field.scene_box_pad: must be in \[0, 1\), got -0.01"):
+        load_config("fast", overrides={"field": {"scene_box_pad": -0.01}})
     with pytest.raises(InputError, match="field:grid.*unknown setting 'levelz'"):
         load_config("fast", overrides={"field": {"grid": {"levelz": 2}}})
 

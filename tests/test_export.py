@@ -744,6 +744,27 @@ def test_cli_end_to_end(tiny_run, tmp_path, capsys):
     assert np.linalg.norm(pts.xyz.mean(0) - gt["xyz"].mean(0)) < np.linalg.norm(np.ptp(gt["xyz"], 0))
 
 
+def test_a_trained_room_keeps_its_field_and_export_inside_its_scene_box(tiny_run):
+    """The run records the scene's box grown by its pad (config.yml), the loaded field has no density outside it,
+    and the exported points lie in it (up to the isosurface's voxel, where the contour crosses the box's face)."""
+    loaded = lift3d.load_run(tiny_run, "cpu")
+    scene = loaded.scene()
+    box = loaded.cfg.scene["render_box"]
+    assert "scene_box" in box["why"]
+    aabb = np.asarray(scene.scene_box.aabb)
+    pad = loaded.cfg.field.scene_box_pad * np.linalg.norm(aabb[1] - aabb[0])
+    assert pad > 0
+    np.testing.assert_allclose(box["normalized"], loaded.norm.to_normalized(aabb + [[-pad] * 3, [pad] * 3]))
+    space = loaded.model.field.space
+    np.testing.assert_allclose(space.box.numpy(), box["normalized"], rtol=1e-6)
+    lo, hi = (torch.as_tensor(b) for b in box["normalized"])
+    outside = torch.stack([(lo + hi) / 2 + torch.tensor([0.0, 0.0, 1.0]) * ((hi - lo)[2] / 2 + 0.01)])
+    assert not bool(space(outside)[1].any())
+    pts = extract_labelled_points(loaded, scene, num_points=4000)
+    voxel = 2.0 / loaded.norm.scale / pts.thresholds["surface_resolution"]
+    assert np.all(pts.xyz >= aabb[0] - pad - 1.5 * voxel) and np.all(pts.xyz <= aabb[1] + pad + 1.5 * voxel)
+
+
 def test_cli_box_fill_switch_reaches_the_point_export(tiny_run, tmp_path, monkeypatch):
     import lift3d.export.pointcloud as pointcloud
     from lift3d.cli.main import main

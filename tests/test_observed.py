@@ -66,6 +66,37 @@ def test_unobserved_cells_have_zero_density_and_survive_a_checkpoint():
     assert legacy.geometry(behind)[0].item() > 0
 
 
+def test_a_set_box_zeroes_density_exactly_at_its_faces_and_bounds_the_rays():
+    from lift3d.render.renderer import SamplingConfig, near_far
+
+    cfg = FieldConfig(num_semantic_classes=3, num_instance_channels=0, contraction="none",
+                      grid=GridFieldConfig(max_resolution=16, min_resolution=8, head_hidden_dim=8))
+    field = GridField(cfg)
+    # A ceiling at z = 0.30 inside a cell of the 16³ lattice (cells 0.125 wide): whole-cell clipping keeps
+    # density up to z = 0.375, the box none above 0.30.
+    field.space.set_box([-1.0, -0.5, -0.4], [1.0, 0.5, 0.30])
+    below, above = torch.tensor([[0.0, 0.0, 0.29]]), torch.tensor([[0.0, 0.0, 0.31]])
+    assert field.geometry(below)[0].item() > 0 and field.geometry(above)[0].item() == 0.0
+    x = torch.tensor([[0.0, 0.0, 0.31], [0.0, 0.6, 0.0], [0.0, 0.2, 0.0]])
+    assert field.space(x)[1].tolist() == [False, False, True]
+    assert field.space.forward_torch(x)[1].tolist() == [False, False, True]  # the reference path agrees
+    # Rays start and stop at the box, not at the cube around it.
+    origins = torch.tensor([[0.0, 0.0, 0.0], [0.0, -0.9, 0.0]])
+    dirs = torch.tensor([[0.0, 0.0, 1.0], [0.0, 1.0, 0.0]])
+    near, far = near_far(origins, dirs, SamplingConfig(near_plane=0.01), True, field.space.ray_bounds())
+    assert torch.allclose(near, torch.tensor([0.01, 0.4])) and torch.allclose(far, torch.tensor([0.30, 1.4]))
+    # Without a box: the cube.
+    near, far = near_far(origins, dirs, SamplingConfig(near_plane=0.01), True, SceneSpace("none").ray_bounds())
+    assert torch.allclose(far, torch.tensor([1.0, 1.9]))
+    # The occupancy grid measures a cell the box's face cuts inside the box; points a cell beyond stay outside.
+    moved = field.space.clamp_to_box(torch.tensor([[0.0, 0.0, 0.35], [0.0, 0.0, 0.9]]), reach=0.125)
+    assert torch.allclose(moved, torch.tensor([[0.0, 0.0, 0.30], [0.0, 0.0, 0.9]]))
+    with pytest.raises(ValueError, match="lower < upper"):
+        field.space.set_box([0.0, 0.0, 0.0], [1.0, -1.0, 1.0])
+    with pytest.raises(ValueError, match="bounded"):
+        SceneSpace("linf").set_box([0.0] * 3, [1.0] * 3)
+
+
 @pytest.mark.parametrize("contraction", ["linf", "l2"])
 def test_contracted_lattice_centres_map_back_to_their_cells(contraction):
     space = SceneSpace(contraction)

@@ -292,7 +292,8 @@ def test_depth_guided_samples_put_weight_where_the_training_depth_says():
     class Wall(torch.nn.Module):
         def __init__(self):
             super().__init__()
-            self.space = type("S", (), {"__call__": lambda self, x: (x, torch.ones(len(x), dtype=torch.bool))})()
+            self.space = type("S", (), {"__call__": lambda self, x: (x, torch.ones(len(x), dtype=torch.bool)),
+                                        "ray_bounds": lambda self: (-1.0, 1.0)})()
 
         def geometry(self, x, space=None):
             sigma = torch.where((x[:, 0] - 0.6).abs() < 0.01, 1e4, 0.0)

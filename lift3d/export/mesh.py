@@ -67,7 +67,8 @@ from lift3d.field.encodings import uncontract
 from lift3d.model.normalization import SceneNormalization
 from lift3d.model.panoptic import PanopticModel
 from lift3d.model.run import LoadedRun
-from lift3d.render.samplers import ray_aabb, spacing_fn, spacing_fn_inv
+from lift3d.render.renderer import near_far
+from lift3d.render.samplers import spacing_fn, spacing_fn_inv
 from lift3d.render.volume import interval_midpoints, opacity_crossing_interval, render_weights
 from lift3d.utils.device import resolve_device
 from lift3d.utils.geometry import vertex_normals
@@ -190,9 +191,8 @@ def choose_density_threshold(loaded: LoadedRun, scene: Scene, *, n_rays: int = 1
     sampling = loaded.cfg.sampling
     steps = torch.linspace(0.0, 1.0, n_samples + 1)
     if model.bounded:
-        near, far = ray_aabb(origins, dirs)
-        near = near.clamp_min(sampling.near_plane)
-        far = torch.maximum(far, near)
+        near, far = near_far(origins, dirs, sampling, True, tuple(b.cpu() if torch.is_tensor(b) else b
+                                                                  for b in model.field.space.ray_bounds()))
         edges = near[:, None] + (far - near)[:, None] * steps
     else:
         s0 = spacing_fn(torch.tensor(sampling.near_plane), "lindisp")

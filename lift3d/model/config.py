@@ -336,6 +336,8 @@ def check_config(cfg: Config, where: str) -> Config:
         coverage = getattr(cfg.sampling, name)
         if not 0.0 <= coverage <= 1.0:
             raise InputError(where, f"sampling.{name}: must be in [0, 1], got {coverage}")
+    if not 0.0 <= cfg.field.scene_box_pad < 1.0:
+        raise InputError(where, f"field.scene_box_pad: must be in [0, 1), got {cfg.field.scene_box_pad}")
     return cfg
 
 

@@ -50,6 +50,9 @@ class PanopticModel(nn.Module):
             [ProposalGrid(r, cfg.field.density_bias) for r in cfg.sampling.proposal_resolutions]
         )
         self.bounded = cfg.field.contraction == "none"
+        box = (cfg.scene or {}).get("render_box") if self.bounded else None
+        if box:  # the scene's own box (lift3d.train.trainer.resolve_config); older runs have none: the cube
+            self.field.space.set_box(*box["normalized"])
         # Channels beyond the label space (a user asked for a larger U) map to void and are never chosen.
         extra = max(0, cfg.field.num_semantic_classes - labels.num_channels)
         things = torch.cat([torch.as_tensor(labels.thing_channels()), torch.zeros(extra, dtype=torch.bool)])
@@ -85,7 +88,11 @@ class PanopticModel(nn.Module):
         occ = self.cfg.field.occupancy
         if occ.resolution <= 0:
             return
-        self.field.space.occupancy.update(lambda x: self.field.geometry(x)[0], resolution=occ.resolution,
+        space = self.field.space
+        # A cell the box's face cuts is measured inside the box (its outer part has no density, and a wall on the
+        # face would read as empty space); cells farther out than one cell stay empty.
+        cell = 2.0 * space.extent / occ.resolution
+        space.occupancy.update(lambda x: self.field.geometry(space.clamp_to_box(x, cell))[0], resolution=occ.resolution,
                                           threshold=occ.threshold, decay=occ.decay, generator=generator,
                                           subdivide=subdivide)
 

@@ -120,11 +120,14 @@ class RenderOutputs:
     deltas: Tensor | None = None  # [R, S] interval lengths Δt (normalised units)
 
 
-def near_far(origins: Tensor, dirs: Tensor, cfg: SamplingConfig, bounded: bool) -> tuple[Tensor, Tensor]:
-    """Per-ray ``near``/``far``: the box ``[-1, 1]^3`` for bounded scenes, the near/far planes otherwise.
-    Rays that miss a bounded box get ``far == near`` (nothing rendered)."""
+def near_far(origins: Tensor, dirs: Tensor, cfg: SamplingConfig, bounded: bool,
+             box: tuple = (-1.0, 1.0)) -> tuple[Tensor, Tensor]:
+    """Per-ray ``near``/``far``: for bounded scenes where the rays enter and leave ``box`` (``(lower, upper)``,
+    floats or ``[3]`` tensors; the field space's :meth:`~lift3d.field.space.SceneSpace.ray_bounds`, by default
+    the cube ``[-1, 1]^3``), the near/far planes otherwise. Rays that miss a bounded box get ``far == near``
+    (nothing rendered)."""
     if bounded:
-        t0, t1 = ray_aabb(origins, dirs)
+        t0, t1 = ray_aabb(origins, dirs, *box)
         near = t0.clamp_min(cfg.near_plane)
         far = torch.maximum(t1, near)
         return near, far
@@ -199,8 +202,8 @@ def render_rays(
     """
     n_rays = origins.shape[0]
     spacing = "linear" if bounded else "lindisp"
-    near, far = near_far(origins, dirs, cfg, bounded)
     space = field.space
+    near, far = near_far(origins, dirs, cfg, bounded, space.ray_bounds())
 
     def points(s_edges: Tensor) -> tuple[Tensor, Tensor, Tensor]:
         t_edges = spacing_fn_inv(s_edges, spacing)

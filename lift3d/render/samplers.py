@@ -26,8 +26,9 @@ def spacing_fn_inv(s: Tensor, kind: str) -> Tensor:
     return torch.where(s < 0.5, 2.0 * s, 0.5 / (1.0 - s).clamp_min(1e-7))
 
 
-def ray_aabb(origins: Tensor, dirs: Tensor, lo: float = -1.0, hi: float = 1.0) -> tuple[Tensor, Tensor]:
-    """Entry and exit distances of rays through the axis-aligned box ``[lo, hi]^3``.
+def ray_aabb(origins: Tensor, dirs: Tensor, lo: float | Tensor = -1.0, hi: float | Tensor = 1.0) -> tuple[Tensor, Tensor]:
+    """Entry and exit distances of rays through the axis-aligned box ``[lo, hi]^3`` (``lo``, ``hi``: floats, or
+    ``[3]`` tensors for a box that is not a cube).
 
     ``origins``, ``dirs``: ``[R, 3]`` → ``t_near``, ``t_far``: ``[R]`` (``t_far <= t_near`` when the ray
     misses the box).

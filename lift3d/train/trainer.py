@@ -62,6 +62,13 @@ def resolve_config(scene: Scene, preset: str, overrides: dict | None) -> tuple[C
         why_bounded += f"; overridden by field.contraction={cfg.field.contraction}"
         norm.bounded = cfg.field.contraction == "none"
     notes = {"bounded": norm.bounded, "why_bounded": why_bounded, "kind_defaults": kind}
+    if norm.bounded and scene.scene_box is not None and cfg.field.clip_to_scene_box:
+        # PanopticModel reads it: no density outside, rays start and stop at it
+        aabb = np.asarray(scene.scene_box.aabb, float)
+        pad = cfg.field.scene_box_pad * float(np.linalg.norm(aabb[1] - aabb[0]))
+        notes["render_box"] = {
+            "normalized": np.sort(norm.to_normalized(aabb + [[-pad] * 3, [pad] * 3]), axis=0).tolist(),
+            "why": f"scene_box in transforms.json, grown by {pad:.4g} (field.clip_to_scene_box, field.scene_box_pad)"}
     notes.update(cfg.field.kind_config.derive_sizes(
         lambda cap, minimum: derive_grid_resolution(scene, norm, cap, minimum)))
     # The categories go into the run too (names and colours for lift3d.load_run without the scene folder).
@@ -170,9 +177,7 @@ class Trainer:
         self.model = PanopticModel(cfg, self.data.labels).to(device)
         if cfg.field.observed_resolution > 0:  # (a resumed run loads its own lattice with the checkpoint)
             cams = replace(scene.cameras, c2w=norm.c2w_normalized(scene.cameras.c2w))
-            box = None
-            if scene.scene_box is not None and norm.bounded and cfg.field.clip_to_scene_box:
-                box = np.sort(norm.to_normalized(np.asarray(scene.scene_box.aabb, float)), axis=0)
+            box = cfg.scene.get("render_box", {}).get("normalized")
             self.model.field.space.observed = observed_cells(
                 self.model.field.space, cams, scene.split("train"), cfg.field.observed_resolution,
                 near=cfg.sampling.near_plane, box=box).to(device)
