@@ -744,10 +744,24 @@ def test_cli_end_to_end(tiny_run, tmp_path, capsys):
     assert np.linalg.norm(pts.xyz.mean(0) - gt["xyz"].mean(0)) < np.linalg.norm(np.ptp(gt["xyz"], 0))
 
 
-def test_a_trained_room_keeps_its_field_and_export_inside_its_scene_box(tiny_run):
-    """The run records the scene's box grown by its pad (config.yml), the loaded field has no density outside it,
-    and the exported points lie in it (up to the isosurface's voxel, where the contour crosses the box's face)."""
-    loaded = lift3d.load_run(tiny_run, "cpu")
+def test_a_room_from_images_alone_keeps_its_field_and_export_inside_its_scene_box(tiny_run, tmp_path):
+    """From images alone the run records the scene's box grown by its pad (config.yml), the loaded field has no
+    density outside it, and the exported points lie in it (up to the isosurface's voxel, where the contour
+    crosses the box's face). With a depth map in every training frame the rays run to the cube, as before."""
+    from lift3d.synth import make_scene
+    from lift3d.train.trainer import train
+
+    with_depth = lift3d.load_run(tiny_run, "cpu")
+    assert with_depth.cfg.scene["render_box"]["normalized"] is None
+    assert "depth map" in with_depth.cfg.scene["render_box"]["why"] and not with_depth.model.field.space.box.numel()
+    make_scene(tmp_path / "scene", kind="indoor", seed=0, noise="moderate", n_views=8, width=32, height=32,
+               depth="none", progress=False)
+    result = train(tmp_path / "scene", preset="fast", output_dir=tmp_path / "runs", progress=False,
+                   print_summary=False, overrides={
+                       "optim": {"steps": 15}, "losses": {"feature": 0.0}, "data": {"patch_size": 0, "rays_per_image": 128},
+                       "field": {"grid": {"resolution_cap": 48}},
+                       "trainer": {"eval_every": 0, "eval_images": 0, "checkpoint_every": 0}})
+    loaded = lift3d.load_run(result.run.path, "cpu")
     scene = loaded.scene()
     box = loaded.cfg.scene["render_box"]
     assert "scene_box" in box["why"]

@@ -235,13 +235,11 @@ def test_occupancy_and_termination_render_what_the_plain_path_renders(run_path):
         model.cfg.sampling = fast_cfg
     assert n_fast <= n_plain
     # A cell the grid calls empty may still have held a little density where no update measured it: a few
-    # rays may change by a few per cent, the rest not. (Measured after 100 steps: 1 ray of 256 by 0.04; since
-    # rays stop at the scene box, 1 ray by 0.22, through a soft wall on the box's face whose density, 1-2.5,
-    # the random measurements missed. Such a field is not yet a surface.)
+    # rays may change by a few per cent (measured after 100 steps: 1 ray of 256 by 0.04), the rest not.
     rgb = (fast.rgb - plain.rgb).abs().amax(-1)
-    assert float(rgb.mean()) < 0.005 and float((rgb > 0.01).float().mean()) < 0.02 and int((rgb > 0.1).sum()) <= 1
+    assert float(rgb.mean()) < 0.005 and float((rgb > 0.01).float().mean()) < 0.02 and float(rgb.max()) < 0.1
     opacity = (fast.opacity - plain.opacity).abs()
-    assert float(opacity.mean()) < 0.005 and int((opacity > 0.1).sum()) <= 1
+    assert float(opacity.mean()) < 0.005 and float(opacity.max()) < 0.1
     sem = (fast.semantic.softmax(-1) - plain.semantic.softmax(-1)).abs().amax(-1)
     assert float(sem.mean()) < 0.01
 

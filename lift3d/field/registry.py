@@ -61,12 +61,13 @@ class FieldConfig:
     instant-NGP marks untrained cells): space behind every camera gets no gradient, keeps its opaque initial
     density and would fog novel views and the export. 0 disables."""
     clip_to_scene_box: bool = True
-    """Bounded scenes with a ``scene_box`` in transforms.json: the field has no density outside that box, and
-    rays start and stop at it, not at the normalised cube around it (padded and cubic: a 7 × 5 × 2.45 m room's
-    cube reaches 2.4 m above its ceiling). The lattice of observed cells zeroed only whole cells outside the box,
-    and a room's ceiling then rose into the cells the box cuts (images-only room: exported ceiling up to 11 cm
-    above the box). The box goes to ``config.yml`` (``scene.render_box``). Turn off when the declared box is
-    too tight."""
+    """Bounded scenes with a ``scene_box`` in transforms.json: the lattice of observed cells zeroes the cells
+    outside that box, and when training frames lack depth maps the field has no density outside the box at all
+    and rays start and stop at it, not at the normalised cube around it (padded and cubic: a 7 × 5 × 2.45 m
+    room's cube reaches 2.4 m above its ceiling). With whole cells only, an images-only room's ceiling rose into
+    the cells the box cuts (exported up to 11 cm above the box). With a depth map in every training frame the
+    rays keep the cube: there the box cost F-score 0.001-0.005 and point mIoU 0.001-0.007 (docs/benchmarks.md).
+    The choice goes to ``config.yml`` (``scene.render_box``). Turn off when the declared box is too tight."""
     scene_box_pad: float = 0.005
     """With ``clip_to_scene_box``: how far the field's box reaches past the ``scene_box``, as a share of its
     diagonal. A wall on the box's face needs room behind it to become opaque."""

@@ -50,9 +50,9 @@ class PanopticModel(nn.Module):
             [ProposalGrid(r, cfg.field.density_bias) for r in cfg.sampling.proposal_resolutions]
         )
         self.bounded = cfg.field.contraction == "none"
-        box = (cfg.scene or {}).get("render_box") if self.bounded else None
+        box = ((cfg.scene or {}).get("render_box") or {}).get("normalized") if self.bounded else None
         if box:  # the scene's own box (lift3d.train.trainer.resolve_config); older runs have none: the cube
-            self.field.space.set_box(*box["normalized"])
+            self.field.space.set_box(*box)
         # Channels beyond the label space (a user asked for a larger U) map to void and are never chosen.
         extra = max(0, cfg.field.num_semantic_classes - labels.num_channels)
         things = torch.cat([torch.as_tensor(labels.thing_channels()), torch.zeros(extra, dtype=torch.bool)])

@@ -64,11 +64,17 @@ def resolve_config(scene: Scene, preset: str, overrides: dict | None) -> tuple[C
     notes = {"bounded": norm.bounded, "why_bounded": why_bounded, "kind_defaults": kind}
     if norm.bounded and scene.scene_box is not None and cfg.field.clip_to_scene_box:
         # PanopticModel reads it: no density outside, rays start and stop at it
-        aabb = np.asarray(scene.scene_box.aabb, float)
-        pad = cfg.field.scene_box_pad * float(np.linalg.norm(aabb[1] - aabb[0]))
-        notes["render_box"] = {
-            "normalized": np.sort(norm.to_normalized(aabb + [[-pad] * 3, [pad] * 3]), axis=0).tolist(),
-            "why": f"scene_box in transforms.json, grown by {pad:.4g} (field.clip_to_scene_box, field.scene_box_pad)"}
+        if all(scene.frames[int(i)].depth_path is not None for i in scene.split("train")):
+            notes["render_box"] = {"normalized": None, "why": (
+                "every training frame has a depth map: rays run to the normalised cube, the scene_box only clips "
+                "the observed-cells lattice (with sensor depth the box cost F-score and point mIoU, docs/presets.md)")}
+        else:
+            aabb = np.asarray(scene.scene_box.aabb, float)
+            pad = cfg.field.scene_box_pad * float(np.linalg.norm(aabb[1] - aabb[0]))
+            notes["render_box"] = {
+                "normalized": np.sort(norm.to_normalized(aabb + [[-pad] * 3, [pad] * 3]), axis=0).tolist(),
+                "why": f"scene_box in transforms.json, grown by {pad:.4g} (field.clip_to_scene_box, "
+                       "field.scene_box_pad): training frames without a depth map"}
     notes.update(cfg.field.kind_config.derive_sizes(
         lambda cap, minimum: derive_grid_resolution(scene, norm, cap, minimum)))
     # The categories go into the run too (names and colours for lift3d.load_run without the scene folder).
@@ -177,7 +183,9 @@ class Trainer:
         self.model = PanopticModel(cfg, self.data.labels).to(device)
         if cfg.field.observed_resolution > 0:  # (a resumed run loads its own lattice with the checkpoint)
             cams = replace(scene.cameras, c2w=norm.c2w_normalized(scene.cameras.c2w))
-            box = cfg.scene.get("render_box", {}).get("normalized")
+            box = None
+            if scene.scene_box is not None and norm.bounded and cfg.field.clip_to_scene_box:
+                box = np.sort(norm.to_normalized(np.asarray(scene.scene_box.aabb, float)), axis=0)
             self.model.field.space.observed = observed_cells(
                 self.model.field.space, cams, scene.split("train"), cfg.field.observed_resolution,
                 near=cfg.sampling.near_plane, box=box).to(device)
