@@ -39,7 +39,7 @@ from lift3d.render.rays import RayGenerator
 from lift3d.render.renderer import RenderOutputs
 from lift3d.train.data import TrainingData
 from lift3d.train.image_depth import CACHE_DIR as IMAGE_DEPTH_CACHE
-from lift3d.train.image_depth import image_depth_targets
+from lift3d.train.image_depth import frames_without_depth, image_depth_targets
 from lift3d.train.distributed import DistContext, all_ranks_agree, broadcast_object, init_distributed, shutdown
 from lift3d.train.observed import observed_cells
 from lift3d.train.scene_sizes import instance_capacity, label_resolution
@@ -62,9 +62,9 @@ def resolve_config(scene: Scene, preset: str, overrides: dict | None) -> tuple[C
         why_bounded += f"; overridden by field.contraction={cfg.field.contraction}"
         norm.bounded = cfg.field.contraction == "none"
     notes = {"bounded": norm.bounded, "why_bounded": why_bounded, "kind_defaults": kind}
-    if norm.bounded and scene.scene_box is not None and cfg.field.clip_to_scene_box:
+    if clipped_scene_box(scene, norm, cfg) is not None:
         # PanopticModel reads it: no density outside, rays start and stop at it
-        if all(scene.frames[int(i)].depth_path is not None for i in scene.split("train")):
+        if len(frames_without_depth(scene, scene.split("train"))) == 0:
             notes["render_box"] = {"normalized": None, "why": (
                 "every training frame has a depth map: rays run to the normalised cube, the scene_box only clips "
                 "the observed-cells lattice (with sensor depth the box cost F-score and point mIoU, docs/presets.md)")}
@@ -72,7 +72,7 @@ def resolve_config(scene: Scene, preset: str, overrides: dict | None) -> tuple[C
             aabb = np.asarray(scene.scene_box.aabb, float)
             pad = cfg.field.scene_box_pad * float(np.linalg.norm(aabb[1] - aabb[0]))
             notes["render_box"] = {
-                "normalized": np.sort(norm.to_normalized(aabb + [[-pad] * 3, [pad] * 3]), axis=0).tolist(),
+                "normalized": clipped_scene_box(scene, norm, cfg, pad).tolist(),
                 "why": f"scene_box in transforms.json, grown by {pad:.4g} (field.clip_to_scene_box, "
                        "field.scene_box_pad): training frames without a depth map"}
     notes.update(cfg.field.kind_config.derive_sizes(
@@ -81,6 +81,15 @@ def resolve_config(scene: Scene, preset: str, overrides: dict | None) -> tuple[C
     cfg.scene = {"data": str(scene.root.resolve()), "name": scene.name, **notes,
                  "normalization": norm.to_json(), "categories": [c.to_json() for c in scene.categories]}
     return cfg, norm
+
+
+def clipped_scene_box(scene: Scene, norm: SceneNormalization, cfg: Config, pad: float = 0.0) -> np.ndarray | None:
+    """``[2, 3]`` the ``scene_box`` of a bounded scene in normalised coordinates, grown by ``pad`` (world units),
+    when the field clips to it (``field.clip_to_scene_box``); else None."""
+    if not (norm.bounded and scene.scene_box is not None and cfg.field.clip_to_scene_box):
+        return None
+    aabb = np.asarray(scene.scene_box.aabb, float)
+    return np.sort(norm.to_normalized(aabb + [[-pad] * 3, [pad] * 3]), axis=0)
 
 
 def resolve_label_sizes(cfg: Config, data: TrainingData, norm: SceneNormalization | None = None,
@@ -183,12 +192,9 @@ class Trainer:
         self.model = PanopticModel(cfg, self.data.labels).to(device)
         if cfg.field.observed_resolution > 0:  # (a resumed run loads its own lattice with the checkpoint)
             cams = replace(scene.cameras, c2w=norm.c2w_normalized(scene.cameras.c2w))
-            box = None
-            if scene.scene_box is not None and norm.bounded and cfg.field.clip_to_scene_box:
-                box = np.sort(norm.to_normalized(np.asarray(scene.scene_box.aabb, float)), axis=0)
             self.model.field.space.observed = observed_cells(
                 self.model.field.space, cams, scene.split("train"), cfg.field.observed_resolution,
-                near=cfg.sampling.near_plane, box=box).to(device)
+                near=cfg.sampling.near_plane, box=clipped_scene_box(scene, norm, cfg)).to(device)
         self.model.train()
         # Under DDP gradients must pass through autograd's accumulation hooks (see field.grids).
         grids.ACCUMULATE_GRAD_IN_PLACE = not self.ctx.enabled
