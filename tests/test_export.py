@@ -87,8 +87,9 @@ def analytic_model():
     return model
 
 
-def _write_ring_scene(root: Path, n_frames: int = 8) -> Path:
-    """Cameras on a ring around the analytic scene, looking at it (world coordinates)."""
+def _write_ring_scene(root: Path, n_frames: int = 8, category: int = 1) -> Path:
+    """Cameras on a ring around the analytic scene, looking at it (world coordinates); every view's 2D labels are
+    one segment of ``category``."""
     cats = [Category(1, "floor", False, (80, 60, 40)), Category(2, "wall", False, (120, 120, 120)),
             Category(3, "ball", True, (200, 30, 30))]
     h, w = 30, 40
@@ -101,7 +102,7 @@ def _write_ring_scene(root: Path, n_frames: int = 8) -> Path:
             target = np.array([0.0, 0.0, -0.2]) / WORLD_SCALE + WORLD_CENTER
             seg = np.ones((h, w), np.int64)
             names.append(writer.add_frame(f"f{k:02d}", np.zeros((h, w, 3), np.uint8), look_at(eye, target),
-                                          (30.0, 30.0, w / 2, h / 2), panoptic=seg, segments=[Segment(1, 1)]))
+                                          (30.0, 30.0, w / 2, h / 2), panoptic=seg, segments=[Segment(1, category)]))
         writer.set_splits(train=names)
     return root
 
@@ -373,6 +374,42 @@ def test_box_fill_adds_the_rendered_surface_where_a_soft_wall_at_the_box_has_no_
     # the solids keep their isosurface: nothing is added next to them
     balls = ~wall
     assert abs(int(balls.sum()) - len(plain.xyz)) <= 0.02 * len(plain.xyz)
+
+
+def test_thing_fill_adds_the_rendered_surface_of_a_soft_thing_where_the_views_label_that_thing(analytic, tmp_path):
+    # Ball B soft: density 60 inside it, below the isosurface's threshold (100) but opaque (optical depth 18
+    # across it), as an object few depth targets reached is in a field trained from images alone.
+    model = analytic_model()
+    solid = model.field.geometry
+
+    def geometry(x, space=None):
+        sigma, geo, u = solid(x, space)
+        d_b = (x - torch.as_tensor(BALL_B[0], dtype=x.dtype)).norm(dim=-1)
+        sigma = torch.where(d_b < BALL_B[1] + 2 * RAMP, (d_b < BALL_B[1]).to(sigma.dtype) * 60.0, sigma)
+        return sigma, geo, u
+
+    model.field.geometry = geometry
+    loaded = LoadedRun(analytic.loaded.run, model.cfg, model, analytic.loaded.norm, model.labels, 0,
+                       torch.device("cpu"))
+    things_seen = load_scene(_write_ring_scene(tmp_path / "things", category=THING))
+    kw = dict(num_points=20000, min_support_views=0, density_threshold=100.0, frame="normalized")
+
+    def near_b(pts):
+        return np.abs(np.linalg.norm(pts.xyz - BALL_B[0], axis=1) - BALL_B[1]) < 0.03
+
+    with dense_uniform_samples(model):
+        filled = extract_labelled_points(loaded, things_seen, **kw)
+        plain = extract_labelled_points(loaded, things_seen, thing_fill=False, **kw)
+        stuff_seen = extract_labelled_points(loaded, analytic.scene, **kw)
+    # The views render the ball and label it a thing: its front faces come back, as the thing, one instance.
+    on_b = near_b(filled)
+    assert on_b.sum() > 40 and filled.thresholds["thing_fill"]["points"] >= on_b.sum()
+    assert (filled.semantic[on_b] == THING).all() and len(np.unique(filled.instance[on_b])) == 1
+    # Nothing else is added: shell A keeps its isosurface points only.
+    assert abs(int((~on_b).sum()) - len(plain.xyz)) <= 0.02 * len(plain.xyz)
+    # Without the fill, or where the views' 2D labels call it stuff, the ball has no points.
+    assert not near_b(plain).any() and "thing_fill" not in plain.thresholds
+    assert not near_b(stuff_seen).any() and stuff_seen.thresholds["thing_fill"]["points"] == 0
 
 
 def test_unbounded_scene_is_contoured_in_contracted_space_and_cropped(tmp_path):
@@ -779,21 +816,21 @@ def test_a_room_from_images_alone_keeps_its_field_and_export_inside_its_scene_bo
     assert np.all(pts.xyz >= aabb[0] - pad - 1.5 * voxel) and np.all(pts.xyz <= aabb[1] + pad + 1.5 * voxel)
 
 
-def test_cli_box_fill_switch_reaches_the_point_export(tiny_run, tmp_path, monkeypatch):
+def test_cli_fill_switches_reach_the_point_export(tiny_run, tmp_path, monkeypatch):
     import lift3d.export.pointcloud as pointcloud
     from lift3d.cli.main import main
 
     seen = []
 
     def fake(*args, **kwargs):
-        seen.append(kwargs.get("box_fill", True))
+        seen.append((kwargs.get("box_fill", True), kwargs.get("thing_fill", True)))
         raise InputError("fake", "stop here")
 
     monkeypatch.setattr(pointcloud, "extract_labelled_points", fake)
-    for flags, expected in (([], True), (["--no-box-fill"], False)):
+    for flags, expected in (([], (True, True)), (["--no-box-fill"], (False, True)), (["--no-thing-fill"], (True, False))):
         assert main(["export", "--run", str(tiny_run), "--pointcloud", "--output-dir", str(tmp_path / "out"),
                      "--quiet", *flags]) == 2
-        assert seen[-1] is expected
+        assert seen[-1] == expected
 
 
 def test_cli_errors_are_one_line(tiny_run, tmp_path, capsys):

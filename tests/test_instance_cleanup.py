@@ -227,3 +227,25 @@ def test_support_is_counted_for_merged_fragments_together():
     votes = np.array([[0, 1, 5, 4, 8], [0, 2, 5, 4, 8], [1, 1, 5, 3, 8], [1, 2, 6, 3, 8]])
     assert supporting_views(votes, np.array([1, 2]), np.array([1, 1])).tolist() == [0, 1]
     assert supporting_views(votes, np.array([1, 2]), np.array([1, 2])).tolist() == [0, 1, 1]
+
+
+def test_instances_mostly_of_filled_points_join_the_nearest_instance_of_their_class():
+    from lift3d.export.instances import join_filled_instances
+
+    rng = np.random.default_rng(0)
+    table = rng.uniform(0, 1, (200, 3))                                    # instance 1, isosurface points
+    crumb = rng.uniform(0, 0.1, (30, 3)) + [1.1, 0, 0]                     # instance 2: 5 isosurface + 25 filled
+    far = rng.uniform(0, 0.1, (30, 3)) + [5.0, 0, 0]                       # instance 3: filled, far away
+    chair = rng.uniform(0, 0.1, (30, 3)) + [1.1, 0.5, 0]                   # instance 4: filled, another class
+    xyz = np.r_[table, crumb, far, chair]
+    semantic = np.r_[np.full(200, 6), np.full(60, 6), np.full(30, 7)]
+    instance = np.r_[np.full(200, 1), np.full(30, 2), np.full(30, 3), np.full(30, 4)]
+    filled = np.r_[np.zeros(205, bool), np.ones(85, bool)]
+    out, joined = join_filled_instances(xyz, semantic, instance, filled, radius=0.3)
+    assert joined == 1
+    assert (out[:230] == out[0]).all()                                    # the crumb joined the table
+    assert len({out[0], out[230], out[260]}) == 3                         # the far patch and the chair stay apart
+    assert sorted(np.unique(out)) == [1, 2, 3]                            # contiguous ids
+    # nothing filled: nothing changes
+    same, joined = join_filled_instances(xyz, semantic, instance, np.zeros(290, bool), radius=0.3)
+    assert joined == 0 and (same == instance).all()

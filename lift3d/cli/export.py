@@ -82,6 +82,9 @@ def add_parser(subparsers, verb: str) -> argparse.ArgumentParser:
     g.add_argument("--no-box-fill", dest="box_fill", action="store_false",
                    help="bounded scenes: do not fill holes of the isosurface next to the scene box with the "
                         "training views' rendered surface (default: fill; docs/export.md)")
+    g.add_argument("--no-thing-fill", dest="thing_fill", action="store_false",
+                   help="do not fill holes of the isosurface on things with the rendered surface of the training "
+                        "views without a depth map (default: fill; docs/export.md)")
     g.add_argument("--min-confidence", type=float, default=0.0, metavar="P",
                    help="drop points whose class probability is below P (default: 0)")
     g.add_argument("--voxel-size", type=float, default=0.0, metavar="S",
@@ -174,7 +177,7 @@ def run(args: argparse.Namespace) -> int:
         refine_surface=args.refine_surface, min_confidence=args.min_confidence, voxel_size=args.voxel_size,
         remove_outliers=args.remove_outliers, std_ratio=args.std_ratio, obb=obb, min_points=args.min_points,
         merge_fragments=args.merge_fragments, crumb_points=args.crumb_points, orient_stuff=args.orient_stuff,
-        view_vote=args.view_vote, box_fill=args.box_fill,
+        view_vote=args.view_vote, box_fill=args.box_fill, thing_fill=args.thing_fill,
         **cleanup, device=args.device,
     )
     print(format_summary(summary))
