@@ -448,6 +448,7 @@ def test_unbounded_scene_is_contoured_in_contracted_space_and_cropped(tmp_path):
     assert near_ball[:, :2].any(1).all(), "every point lies on the foreground or the background ball"
     assert near_ball[:, 0].sum() > 1000 and near_ball[:, 1].sum() > 100
     assert np.abs(pts.xyz).max() <= 4.0 + 1e-3, "far background beyond the export radius is skipped"
+    assert "thing_fill" not in pts.thresholds, "streets get no thing fill (docs/export.md)"
 
 
 def test_obb_crop_keeps_exactly_the_points_inside(analytic, surface_points):

@@ -83,8 +83,8 @@ def add_parser(subparsers, verb: str) -> argparse.ArgumentParser:
                    help="bounded scenes: do not fill holes of the isosurface next to the scene box with the "
                         "training views' rendered surface (default: fill; docs/export.md)")
     g.add_argument("--no-thing-fill", dest="thing_fill", action="store_false",
-                   help="do not fill holes of the isosurface on things with the rendered surface of the training "
-                        "views without a depth map (default: fill; docs/export.md)")
+                   help="bounded scenes: do not fill holes of the isosurface on things with the rendered surface "
+                        "of the training views without a depth map (default: fill; docs/export.md)")
     g.add_argument("--min-confidence", type=float, default=0.0, metavar="P",
                    help="drop points whose class probability is below P (default: 0)")
     g.add_argument("--voxel-size", type=float, default=0.0, metavar="S",
