@@ -376,7 +376,8 @@ def test_box_fill_adds_the_rendered_surface_where_a_soft_wall_at_the_box_has_no_
     assert abs(int(balls.sum()) - len(plain.xyz)) <= 0.02 * len(plain.xyz)
 
 
-def test_thing_fill_adds_the_rendered_surface_of_a_soft_thing_where_the_views_label_that_thing(analytic, tmp_path):
+def test_thing_fill_adds_the_rendered_surface_of_a_soft_thing_where_the_views_label_that_thing(analytic, tmp_path,
+                                                                                              monkeypatch):
     # Ball B soft: density 60 inside it, below the isosurface's threshold (100) but opaque (optical depth 18
     # across it), as an object few depth targets reached is in a field trained from images alone.
     model = analytic_model()
@@ -401,6 +402,7 @@ def test_thing_fill_adds_the_rendered_surface_of_a_soft_thing_where_the_views_la
         filled = extract_labelled_points(loaded, things_seen, **kw)
         plain = extract_labelled_points(loaded, things_seen, thing_fill=False, **kw)
         stuff_seen = extract_labelled_points(loaded, analytic.scene, **kw)
+        voxels = extract_labelled_points(loaded, things_seen, voxel_size=0.02, **kw)
     # The views render the ball and label it a thing: its front faces come back, as the thing, one instance.
     on_b = near_b(filled)
     assert on_b.sum() > 40 and filled.thresholds["thing_fill"]["points"] >= on_b.sum()
@@ -410,6 +412,15 @@ def test_thing_fill_adds_the_rendered_surface_of_a_soft_thing_where_the_views_la
     # Without the fill, or where the views' 2D labels call it stuff, the ball has no points.
     assert not near_b(plain).any() and "thing_fill" not in plain.thresholds
     assert not near_b(stuff_seen).any() and stuff_seen.thresholds["thing_fill"]["points"] == 0
+    # Voxel down-sampling keeps track of which points were filled: the pieces of the sparse filled ball (tiny views)
+    # join each other.
+    import lift3d.export.pointcloud as pointcloud
+
+    monkeypatch.setattr(pointcloud, "join_filled_instances", lambda xyz, sem, inst, filled, radius: (inst, 0))
+    with dense_uniform_samples(model):
+        apart = extract_labelled_points(loaded, things_seen, voxel_size=0.02, **kw)
+    pieces = len(np.unique(voxels.instance[near_b(voxels)]))
+    assert near_b(voxels).sum() > 20 and pieces < len(np.unique(apart.instance[near_b(apart)])) / 2
 
 
 def test_unbounded_scene_is_contoured_in_contracted_space_and_cropped(tmp_path):

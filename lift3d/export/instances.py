@@ -291,7 +291,9 @@ def join_filled_instances(xyz: np.ndarray, semantic: np.ndarray, instance: np.nd
     Points that fill a hole of an object's isosurface lie more than the instance link radius from it (they fill
     only where the isosurface has nothing), so alone they would make instances of their own, or lift a crumb of
     the isosurface above the size at which it folds into its neighbour: on an images-only tuning room, an extra
-    table of 82 points on the table's top.
+    table of 82 points on the table's top. A mostly-filled instance joins the nearest instance that is not mostly
+    filled, else the nearest that is (an object with no isosurface at all is filled in pieces that join each
+    other). Each joins one other, so two instances that are not mostly filled never join through them.
 
     Parameters
     ----------
@@ -307,38 +309,56 @@ def join_filled_instances(xyz: np.ndarray, semantic: np.ndarray, instance: np.nd
     Returns
     -------
     (np.ndarray, int)
-        The instance ids, and how many instances joined another.
+        The instance ids, and how many fewer instances there are.
 
     Examples
     --------
-    A table (instance 1) and two filled patches of table: one 0.15 from it joins it, one 2 away stays.
+    A table (instance 1) and filled patches of table: one 0.15 from it joins it, and of two 2 away one joins the
+    other.
 
-    >>> xyz = np.array([[0.0, 0, 0], [0.05, 0, 0], [0.2, 0, 0], [2.1, 0, 0]])
-    >>> ids, joined = join_filled_instances(xyz, np.array([5, 5, 5, 5]), np.array([1, 1, 2, 3]),
-    ...                                     np.array([False, False, True, True]), radius=0.2)
+    >>> xyz = np.array([[0.0, 0, 0], [0.05, 0, 0], [0.2, 0, 0], [2.1, 0, 0], [2.2, 0, 0]])
+    >>> ids, joined = join_filled_instances(xyz, np.array([5, 5, 5, 5, 5]), np.array([1, 1, 2, 3, 4]),
+    ...                                     np.array([False, False, True, True, True]), radius=0.2)
     >>> ids.tolist(), joined
-    ([1, 1, 1, 2], 1)
+    ([1, 1, 1, 2, 2], 2)
     """
     xyz = np.asarray(xyz, np.float64)
     instance = np.asarray(instance, np.int64).copy()
     filled = np.asarray(filled, bool)
     ids, counts = np.unique(instance[instance > 0], return_counts=True)
-    filled_counts = np.bincount(instance[filled & (instance > 0)], minlength=int(ids.max(initial=0)) + 1)[ids]
+    if not len(ids) or not filled.any():
+        return instance, 0
+    filled_counts = np.bincount(instance[filled & (instance > 0)], minlength=int(ids.max()) + 1)[ids]
     mostly_filled = ids[filled_counts > 0.5 * counts]
-    joined = 0
+    joins = {}  # each mostly-filled instance -> the nearest other of its class within the radius, solid ones first
     for i in mostly_filled:
         own = instance == i
         c = semantic[own][0]
-        target = (semantic == c) & (instance > 0) & ~own & ~np.isin(instance, mostly_filled)
-        if not target.any():
-            continue
-        dist, nearest = cKDTree(xyz[target]).query(xyz[own], distance_upper_bound=radius)
-        if np.isfinite(dist).any():
-            instance[own] = instance[target][nearest[np.argmin(dist)]]
-            joined += 1
+        other = (semantic == c) & (instance > 0) & ~own
+        for candidates in (other & ~np.isin(instance, mostly_filled), other):
+            if not candidates.any():
+                continue
+            dist, nearest = cKDTree(xyz[candidates]).query(xyz[own], distance_upper_bound=radius)
+            if np.isfinite(dist).any():
+                joins[int(i)] = int(instance[candidates][nearest[np.argmin(dist)]])
+                break
+
+    group = {int(i): int(i) for i in ids}  # union-find over the joins
+
+    def find(i: int) -> int:
+        while group[i] != i:
+            group[i] = group[group[i]]
+            i = group[i]
+        return i
+
+    for i, j in joins.items():
+        group[find(i)] = find(j)
+    joined = len(ids) - len({find(int(i)) for i in ids})
     if joined:
-        instance = _contiguous_ids(xyz, instance - 1, np.ones(len(instance), bool))
-    return instance, joined
+        lookup = np.zeros(int(ids.max()) + 1, np.int64)
+        lookup[ids] = [find(int(i)) for i in ids]
+        instance = _contiguous_ids(xyz, np.where(instance > 0, lookup[instance], 0) - 1, np.ones(len(instance), bool))
+    return instance, int(joined)
 
 
 #: Where the instance ids of rendered thing pixels come from (``lift3d eval --instances``, ``lift3d render
