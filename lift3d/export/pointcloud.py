@@ -534,7 +534,7 @@ def box_face_fill(loaded: LoadedRun, scene: Scene, x_surface: np.ndarray, cams, 
     surface there: the last centimetres before the box end the ray whatever the density. A wall or ceiling
     met by few depth targets then stays a soft layer below the isosurface's threshold, and its pixels render
     right while the isosurface has a hole (images-only tuning room 7: 0.74 of the ceiling's GT points within τ
-    of the export; a reported room, 0.41). The training views' rendered surface (:func:`rendered_surface_points`)
+    of the export; a reported room, 0.41). The training views' rendered surface (:func:`_fill_holes`)
     is kept where it lies within ``margin`` of the box's diagonal of a face of the box and more than three point
     spacings (and ``min_gap``) from every isosurface point, thinned to one per point spacing. ``min_gap`` keeps a
     dense export from covering again surface the isosurface has (the export passes two isosurface voxels, its
