@@ -125,7 +125,7 @@ def test_walls_without_texture_come_from_where_the_labels_put_them_on_the_floor(
     assert len(strict) < len(xyz)
 
 
-def _corridor_views(shifts, size=96, f=80.0, start=(-3.0, -1.0)):
+def _corridor_views(shifts, size=96, f=80.0, start=(-3.0, -1.0), pitch_deg=10.0):
     """Views from one end of a 12 × 4 m room (floor z = 0, walls x = ±6 and y = ±2), 1.5 m up, looking along +x
     and 10° down, yawed so each sees a side wall near by and the far wall x = 6 five to nine metres away (from x
     in ``start``). Labels
@@ -134,7 +134,7 @@ def _corridor_views(shifts, size=96, f=80.0, start=(-3.0, -1.0)):
     rng = np.random.default_rng(5)
     c2ws, labels = [], {}
     for _ in shifts:
-        yaw, pitch = rng.uniform(-0.5, 0.5), np.radians(10)
+        yaw, pitch = rng.uniform(-0.5, 0.5), np.radians(pitch_deg)
         fwd = np.array([np.cos(yaw) * np.cos(pitch), np.sin(yaw) * np.cos(pitch), -np.sin(pitch)])
         right = np.cross(fwd, UP)
         right /= np.linalg.norm(right)
@@ -214,6 +214,23 @@ def test_floor_line_walls_are_added_only_where_the_views_do_not_see_through_them
     sight = (np.repeat(cams.centers, len(beyond), 0), np.tile(beyond, (8, 1)))
     assert add_walls(known, cams, labels, line, near, UP, 2.5, 0.1, sight)[1] == 0
 
+
+
+def test_a_far_wall_whose_foot_the_views_see_at_their_top_edge_is_added_up_to_the_wall_height():
+    # Views looking 38 degrees down see the far wall x = 6 only in their top rows: its vertical lines leave the
+    # image a few rows above the foot. The view does not say the wall ends there; without going on past the edge
+    # the wall's points lie along a line and it is not added (an L-shaped tuning room's inner wall).
+    cams, labels = _corridor_views([0] * 8, pitch_deg=38.0)
+    known, pts = _side_walls_and_floor()
+    line = floor_line(cams, range(8), labels, UP, 0.0, [FLOOR], [WALL])
+    walls = [w for w in floor_line_walls(line, np.array([[1.0, 0, 0]]), known, threshold=0.1) if abs(w[0][0]) == 1]
+    assert len(walls) == 1 and -walls[0][1] * walls[0][0][0] == pytest.approx(6.0, abs=0.1)
+    sight = (np.repeat(cams.centers, len(pts), 0), np.tile(pts, (8, 1)))
+    assert add_walls(known, cams, labels, line, walls, UP, 2.5, 0.1, sight, past_edge=False)[1] == 0
+    planes, added = add_walls(known, cams, labels, line, walls, UP, 2.5, 0.1, sight)
+    assert added == 1
+    t, k = planes.first_hit(np.array([[0.0, 0.0, 2.2]]), np.array([[1.0, 0.0, 0.0]]))  # above what any view shows
+    assert t[0] == pytest.approx(6.0, abs=0.1) and planes.holds(k, np.array([WALL]))[0]
 
 
 def test_a_floor_line_wall_settles_onto_the_stereo_points_behind_its_foot():

@@ -502,9 +502,11 @@ def boundary_floor_hits(cameras, i: int, sem: np.ndarray, normal: np.ndarray, of
 
 
 def _vertical_lines(cameras, i: int, sem: np.ndarray, foot: np.ndarray, cls: np.ndarray, heights: np.ndarray,
-                    normal: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+                    normal: np.ndarray, past_edge: bool = False) -> tuple[np.ndarray, np.ndarray]:
     """Points up the vertical line above each wall foot (``[F, 3]``, class ``cls``) at ``heights``, while view
-    ``i``'s labels keep calling the line that class: ``(xyz [N, 3], classes [N])``."""
+    ``i``'s labels keep calling the line that class: ``(xyz [N, 3], classes [N])``. With ``past_edge``, a line
+    that leaves the image with the labels still calling it that class goes on up to the last height: nothing in
+    the view says where the wall ends."""
     h, w = sem.shape
     line = foot[:, None, :] + heights[None, :, None] * normal  # [F, S, 3]
     uv, z = cameras.project(i, line.reshape(-1, 3))
@@ -515,6 +517,11 @@ def _vertical_lines(cameras, i: int, sem: np.ndarray, foot: np.ndarray, cls: np.
     same[inside] = sem[v[inside].astype(np.int64), u[inside].astype(np.int64)] == np.repeat(cls, len(heights))[
         inside.ravel()]
     same[:, 0] = True  # the foot itself
+    if past_edge:
+        # outside the image from some height on (a view looking down at a far wall's foot): the part past the
+        # edge is not contradicted by this view; it counts as seen, up to where the labels stopped inside
+        left = ~inside & (np.cumsum(inside[:, ::-1], axis=1)[:, ::-1] == 0)  # outside, and never back in above
+        same |= left
     keep = np.cumprod(same, axis=1).astype(bool)
     return line[keep], np.repeat(cls, keep.sum(1))
 
@@ -906,7 +913,7 @@ def stretch_ids(along: np.ndarray, gap: float) -> np.ndarray:
 def add_walls(planes: StuffPlanes, cameras, labels: dict[int, np.ndarray], line: FloorLine, walls, up: np.ndarray,
               max_height: float, threshold: float, sightlines: tuple[np.ndarray, np.ndarray],
               max_crossing_share: float = 0.2, min_class_share: float = 0.25, gap: float | None = None,
-              settle: bool = True) -> tuple[StuffPlanes, int]:
+              settle: bool = True, past_edge: bool = True) -> tuple[StuffPlanes, int]:
     """``planes`` with the walls of :func:`floor_line_walls` that the views do not contradict, and how many.
 
     Each wall's points are its observations' feet on it and the vertical lines above them while each view keeps
@@ -941,7 +948,7 @@ def add_walls(planes: StuffPlanes, cameras, labels: dict[int, np.ndarray], line:
         for i in np.unique(sub.frame):
             m = sub.frame == i
             p, c = _vertical_lines(cameras, int(i), labels[int(i)], feet[m], sub.classes[m],
-                                   np.arange(0.0, max_height + 1e-9, 2 * threshold), up)
+                                   np.arange(0.0, max_height + 1e-9, 2 * threshold), up, past_edge=past_edge)
             xyz.append(p), cls.append(c), cam.append(np.broadcast_to(cameras.centers[int(i)], (len(p), 3)))
         xyz, cls = np.concatenate(xyz), np.concatenate(cls)
         if contradicted((np.r_[sightlines[0], *cam], np.r_[sightlines[1], xyz]), normal, offset, xyz, threshold,
