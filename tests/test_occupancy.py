@@ -58,7 +58,11 @@ def test_the_chunked_measurement_matches_a_cell_by_cell_reference(contraction, s
     w = torch.tensor([0.7, -1.3, 0.4])
 
     def density(x):
-        return torch.relu(torch.sin(5.0 * (x @ w)) * 40.0 + 10.0 * x[:, 0])
+        # of a bounded argument: far out in contracted space x is in the thousands, where a matrix product over many
+        # points and over one round differently (x86 kernels differ: an Intel Xeon's did) and sin turns that last
+        # float bit into a difference of 1e-3
+        u = x / (1.0 + x.norm(dim=1, keepdim=True))
+        return torch.relu(torch.sin(5.0 * (u @ w)) * 40.0 + 10.0 * u[:, 0])
 
     res = 5
     fine = res * subdivide
@@ -73,7 +77,9 @@ def test_the_chunked_measurement_matches_a_cell_by_cell_reference(contraction, s
         value = density(uncontract_torch(c[None], contraction))[0]
         cell = (i // subdivide, j // subdivide, k // subdivide)
         expected[cell] = torch.maximum(expected[cell], value)
-    assert torch.allclose(occ.cell_density.view(res, res, res), expected, rtol=1e-5, atol=1e-5)
+    # densities up to ~50 in float32: a few units in the last place of the largest (the product rounds differently
+    # over many points than over one)
+    assert torch.allclose(occ.cell_density.view(res, res, res), expected, rtol=1e-5, atol=1e-4)
 
 
 def test_contracted_cells_are_longer_outside_the_unit_ball():
