@@ -66,6 +66,11 @@ class StuffPlanes:
         (:meth:`with_seen_through`): a ray meets the margin only outside them. None: the whole margin counts.
     cell : float
         The size of those cells (world units).
+    margin_classes : list of frozenset, optional
+        Per plane, the classes whose pixels its margin takes (:meth:`first_hit` given their classes): those with
+        a share of its inliers (see :func:`fit_planes`). A class held for a few of its points (a ceiling's edge
+        along a wall's top, a window in a wall) is there only where those points are; past them the margin
+        would give its pixels the wall's depth where the wall has ended. None: every class of ``classes``.
     """
 
     normal: np.ndarray
@@ -79,6 +84,7 @@ class StuffPlanes:
     margin: float = 0.0
     seen_through: list | None = None
     cell: float = 0.0
+    margin_classes: list | None = None
 
     def __len__(self) -> int:
         return len(self.offset)
@@ -147,14 +153,17 @@ class StuffPlanes:
         return StuffPlanes(np.r_[self.normal.reshape(-1, 3), normal[None]], np.r_[self.offset, offset],
                            [*self.classes, frozenset(int(c) for c in np.unique(classes))], np.r_[self.rms, rms],
                            np.r_[self.inliers, len(points)].astype(np.int64), np.r_[self.origin.reshape(-1, 3), origin[None]],
-                           np.r_[self.basis.reshape(-1, 2, 3), basis[None]], [*self.hull, hull], self.margin)
+                           np.r_[self.basis.reshape(-1, 2, 3), basis[None]], [*self.hull, hull], self.margin,
+                           margin_classes=None if self.margin_classes is None else
+                           [*self.margin_classes, frozenset(int(c) for c in np.unique(classes))])
 
     def subset(self, keep: np.ndarray) -> "StuffPlanes":
         """The planes where ``keep`` (``[P] bool``)."""
         idx = np.flatnonzero(keep)
         return StuffPlanes(self.normal[idx], self.offset[idx], [self.classes[i] for i in idx], self.rms[idx],
                            self.inliers[idx], self.origin[idx], self.basis[idx], [self.hull[i] for i in idx],
-                           self.margin)
+                           self.margin, margin_classes=None if self.margin_classes is None else
+                           [self.margin_classes[i] for i in idx])
 
     def _moved(self, k: int, normal: np.ndarray, offset: float) -> "StuffPlanes":
         """These planes with plane ``k`` replaced by ``normal · x + offset = 0`` (a small turn and shift of
@@ -184,7 +193,7 @@ class StuffPlanes:
         return out
 
     def first_hit(self, origins: np.ndarray, directions: np.ndarray, min_cos: float = 0.1,
-                  t_min: float = 1e-6) -> tuple[np.ndarray, np.ndarray]:
+                  t_min: float = 1e-6, classes: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
         """Where each ray first meets a plane inside the plane's extent.
 
         Parameters
@@ -193,6 +202,9 @@ class StuffPlanes:
             ``[R, 3]`` rays (unit directions).
         min_cos : float
             A ray closer to parallel with a plane than this (``|cos|`` of the angle to its normal) ignores it.
+        classes : np.ndarray, optional
+            ``int [R]`` the class of each ray's pixel: a plane's margin then counts only for the rays of its
+            ``margin_classes``, the others pass through it.
 
         Returns
         -------
@@ -222,6 +234,8 @@ class StuffPlanes:
                     ext &= (p @ self.normal[j] + self.offset[j]) * side > -1e-9
             if self.seen_through is not None and ext.any():
                 ext[ext] = ~self.seen_through_at(k, p2[ext])
+            if classes is not None and self.margin_classes is not None and ext.any():
+                ext[ext] = np.isin(classes[idx[ext]], sorted(self.margin_classes[k]))
             inside &= (beyond <= 0) | ext
             idx = idx[inside]
             t_best[idx] = t[idx]
@@ -385,16 +399,18 @@ def fit_planes(points: np.ndarray, classes: np.ndarray, stuff_ids, threshold: fl
         pts, pts_cls = left[inl], left_cls[inl]
         left, left_cls = left[~inl], left_cls[~inl]
         ids, counts = np.unique(pts_cls, return_counts=True)
-        held = ids[(counts >= min_class_share * len(pts)) | ((counts >= min_class_cover * class_total[ids]) & (counts >= 3))]
+        main = (counts >= min_class_share * len(pts)) | (counts == counts.max())
+        held = ids[main | ((counts >= min_class_cover * class_total[ids]) & (counts >= 3))]
         rms = float(np.sqrt(np.mean((pts @ n + d) ** 2)))
-        rows.append((n, d, frozenset(int(c) for c in held), rms, len(pts), origin, basis, hull))
+        rows.append((n, d, frozenset(int(c) for c in held), rms, len(pts), origin, basis, hull,
+                     frozenset(int(c) for c in ids[main])))
     if not rows:
         z3 = np.zeros((0, 3))
         return StuffPlanes(z3, np.zeros(0), [], np.zeros(0), np.zeros(0, np.int64), z3, np.zeros((0, 2, 3)), [],
-                           float(margin))
-    n, d, cls, rms, cnt, origin, basis, hull = zip(*rows)
+                           float(margin), margin_classes=[])
+    n, d, cls, rms, cnt, origin, basis, hull, main = zip(*rows)
     return StuffPlanes(np.array(n), np.array(d), list(cls), np.array(rms), np.array(cnt, np.int64),
-                       np.array(origin), np.array(basis), list(hull), float(margin))
+                       np.array(origin), np.array(basis), list(hull), float(margin), margin_classes=list(main))
 
 
 def floor_boundary_points(cameras, frames, labels: dict[int, np.ndarray], normal: np.ndarray, offset: float,

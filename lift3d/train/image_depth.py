@@ -391,7 +391,7 @@ def _plane_rows(scene: Scene, sparse: SparsePoints, dense: DenseDepth, frames: n
         if not len(r):
             continue
         o, d = scene.cameras.rays(i, c, r)
-        t, k = planes.first_hit(o, d)
+        t, k = planes.first_hit(o, d, classes=cls)
         ok = k >= 0
         ok &= planes.holds(k, cls)
         if reach is not None and not ok.all():
