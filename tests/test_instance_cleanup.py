@@ -249,3 +249,24 @@ def test_instances_mostly_of_filled_points_join_the_nearest_instance_of_their_cl
     # nothing filled: nothing changes
     same, joined = join_filled_instances(xyz, semantic, instance, np.zeros(290, bool), radius=0.3)
     assert joined == 0 and (same == instance).all()
+
+
+def test_a_whole_object_of_mostly_filled_points_does_not_join_a_smaller_neighbour_of_its_class():
+    from lift3d.export.instances import join_filled_instances
+
+    # Two tables 0.8 m apart, a few stray points of fog 0.25 m beside the first: the first table's points are
+    # mostly filled (images only), the second's are not. The first is the larger: it is an object, not a patch
+    # of the second, and stays apart; a small filled patch beside the second still joins it.
+    rng = np.random.default_rng(1)
+    first = rng.uniform(0, 1, (240, 3))                                   # instance 1: 140 of 240 filled
+    second = rng.uniform(0, 1, (200, 3)) + [1.8, 0, 0]                    # instance 2: not filled
+    patch = rng.uniform(0, 0.1, (20, 3)) + [2.9, 0, 0]                    # instance 3: filled, beside the second
+    fog = np.array([[1.25, 0.5, 0.5]])                                    # instance 1's, 0.25 m from it
+    xyz = np.r_[first, fog, second, patch]
+    instance = np.r_[np.full(241, 1), np.full(200, 2), np.full(20, 3)]
+    filled = np.r_[np.arange(241) < 140, np.zeros(200, bool), np.ones(20, bool)]
+    # the fog is within the radius of the second table
+    out, joined = join_filled_instances(xyz, np.full(len(xyz), 6), instance, filled, radius=0.6)
+    assert joined == 1
+    assert out[0] != out[241] and (out[:241] == out[0]).all()             # the two tables stay apart
+    assert (out[441:] == out[241]).all()                                  # the patch joined the second table

@@ -293,7 +293,10 @@ def join_filled_instances(xyz: np.ndarray, semantic: np.ndarray, instance: np.nd
     the isosurface above the size at which it folds into its neighbour: on an images-only tuning room, an extra
     table of 82 points on the table's top. A mostly-filled instance joins the nearest instance that is not mostly
     filled, else the nearest that is (an object with no isosurface at all is filled in pieces that join each
-    other). Each joins one other, so two instances that are not mostly filled never join through them.
+    other). Each joins one other, so two instances that are not mostly filled never join through them. And each
+    joins one at least its own size: a filled patch is smaller than the object it belongs to, while a whole
+    object can be mostly filled too (images only: a table with 53 % filled points, 2 116 of them, joined the
+    table beside it, 1 781 points and 0.8 m away, through a few stray points of fog between them).
 
     Parameters
     ----------
@@ -330,11 +333,13 @@ def join_filled_instances(xyz: np.ndarray, semantic: np.ndarray, instance: np.nd
         return instance, 0
     filled_counts = np.bincount(instance[filled & (instance > 0)], minlength=int(ids.max()) + 1)[ids]
     mostly_filled = ids[filled_counts > 0.5 * counts]
+    size = np.zeros(int(ids.max()) + 1, np.int64)
+    size[ids] = counts
     joins = {}  # each mostly-filled instance -> the nearest other of its class within the radius, solid ones first
     for i in mostly_filled:
         own = instance == i
         c = semantic[own][0]
-        other = (semantic == c) & (instance > 0) & ~own
+        other = (semantic == c) & (instance > 0) & ~own & (size[instance] >= own.sum())
         for candidates in (other & ~np.isin(instance, mostly_filled), other):
             if not candidates.any():
                 continue
