@@ -579,9 +579,9 @@ CEILING = 3
 def test_a_class_a_wall_holds_for_a_few_points_does_not_reach_past_them_in_its_margin():
     # The L-shaped room without the points of its inner wall x = -1, and a few ceiling-labelled points along the
     # top of the other inner wall (y = -1, x from -3 to -1): too few to make a quarter of its inliers, but more
-    # than half of the class's points (a plain ceiling has few), so the wall holds ceiling. A ceiling pixel's ray that passes y = -1 in the
-    # wall's 1 m margin, where the wall has ended (a reported room: 22 % of its ceiling targets were such), goes
-    # on to the ceiling; a wall pixel's ray there still ends on the margin.
+    # than half of the class's points (a plain ceiling has few), so the wall holds ceiling. A ceiling pixel's ray
+    # that passes y = -1 in the wall's 1 m margin, where the wall has ended (a reported room: 22 % of its ceiling
+    # targets were such), goes on to the ceiling; a wall pixel's ray there still ends on the margin.
     rng = np.random.default_rng(4)
     pts, cls, (cam, seen) = _l_room(rng)
     inner = (np.abs(pts[:, 0] + 1) < 0.02) & (pts[:, 1] < -1) & (cls == WALL)

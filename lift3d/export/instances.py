@@ -335,11 +335,12 @@ def join_filled_instances(xyz: np.ndarray, semantic: np.ndarray, instance: np.nd
     mostly_filled = ids[filled_counts > 0.5 * counts]
     size = np.zeros(int(ids.max()) + 1, np.int64)
     size[ids] = counts
+    point_size = size[instance]  # each point's instance's size (0 on stuff)
     joins = {}  # each mostly-filled instance -> the nearest other of its class within the radius, solid ones first
     for i in mostly_filled:
         own = instance == i
         c = semantic[own][0]
-        other = (semantic == c) & (instance > 0) & ~own & (size[instance] >= own.sum())
+        other = (semantic == c) & (instance > 0) & ~own & (point_size >= size[i])
         for candidates in (other & ~np.isin(instance, mostly_filled), other):
             if not candidates.any():
                 continue

@@ -70,7 +70,7 @@ class StuffPlanes:
         Per plane, the classes whose pixels its margin takes (:meth:`first_hit` given their classes): those with
         a share of its inliers (see :func:`fit_planes`). A class held for a few of its points (a ceiling's edge
         along a wall's top, a window in a wall) is there only where those points are; past them the margin
-        would give its pixels the wall's depth where the wall has ended. None: every class of ``classes``.
+        would give its pixels the wall's depth where the wall has ended. Default: every class of ``classes``.
     """
 
     normal: np.ndarray
@@ -85,6 +85,10 @@ class StuffPlanes:
     seen_through: list | None = None
     cell: float = 0.0
     margin_classes: list | None = None
+
+    def __post_init__(self) -> None:
+        if self.margin_classes is None:
+            self.margin_classes = list(self.classes)
 
     def __len__(self) -> int:
         return len(self.offset)
@@ -154,16 +158,14 @@ class StuffPlanes:
                            [*self.classes, frozenset(int(c) for c in np.unique(classes))], np.r_[self.rms, rms],
                            np.r_[self.inliers, len(points)].astype(np.int64), np.r_[self.origin.reshape(-1, 3), origin[None]],
                            np.r_[self.basis.reshape(-1, 2, 3), basis[None]], [*self.hull, hull], self.margin,
-                           margin_classes=None if self.margin_classes is None else
-                           [*self.margin_classes, frozenset(int(c) for c in np.unique(classes))])
+                           margin_classes=[*self.margin_classes, frozenset(int(c) for c in np.unique(classes))])
 
     def subset(self, keep: np.ndarray) -> "StuffPlanes":
         """The planes where ``keep`` (``[P] bool``)."""
         idx = np.flatnonzero(keep)
         return StuffPlanes(self.normal[idx], self.offset[idx], [self.classes[i] for i in idx], self.rms[idx],
                            self.inliers[idx], self.origin[idx], self.basis[idx], [self.hull[i] for i in idx],
-                           self.margin, margin_classes=None if self.margin_classes is None else
-                           [self.margin_classes[i] for i in idx])
+                           self.margin, margin_classes=[self.margin_classes[i] for i in idx])
 
     def _moved(self, k: int, normal: np.ndarray, offset: float) -> "StuffPlanes":
         """These planes with plane ``k`` replaced by ``normal · x + offset = 0`` (a small turn and shift of
@@ -234,7 +236,7 @@ class StuffPlanes:
                     ext &= (p @ self.normal[j] + self.offset[j]) * side > -1e-9
             if self.seen_through is not None and ext.any():
                 ext[ext] = ~self.seen_through_at(k, p2[ext])
-            if classes is not None and self.margin_classes is not None and ext.any():
+            if classes is not None and ext.any():
                 ext[ext] = np.isin(classes[idx[ext]], sorted(self.margin_classes[k]))
             inside &= (beyond <= 0) | ext
             idx = idx[inside]
@@ -407,7 +409,7 @@ def fit_planes(points: np.ndarray, classes: np.ndarray, stuff_ids, threshold: fl
     if not rows:
         z3 = np.zeros((0, 3))
         return StuffPlanes(z3, np.zeros(0), [], np.zeros(0), np.zeros(0, np.int64), z3, np.zeros((0, 2, 3)), [],
-                           float(margin), margin_classes=[])
+                           float(margin))
     n, d, cls, rms, cnt, origin, basis, hull, main = zip(*rows)
     return StuffPlanes(np.array(n), np.array(d), list(cls), np.array(rms), np.array(cnt, np.int64),
                        np.array(origin), np.array(basis), list(hull), float(margin), margin_classes=list(main))
