@@ -234,3 +234,22 @@ def test_planarity_prior_is_zero_on_planes_and_counts_only_triples_inside_one_va
     halves = (u >= 3).float()[None]
     assert float(planar_segment_loss(crease, halves, ok)) < 1e-6 < float(planar_segment_loss(crease, one, ok))
     assert float(planar_segment_loss(bowl, one, torch.zeros_like(ok))) == 0.0  # nothing valid: 0, not NaN
+
+
+def test_plane_sweep_depths_few_views_confirmed_are_left_out_of_the_plane_fit_when_recorded(tmp_path):
+    from lift3d.data.stereo import DenseDepth
+    from lift3d.train.image_depth import _dense_points
+
+    gt = textured_plane_scene(tmp_path / "s", n=2)
+    scene = load_scene(tmp_path / "s")
+    depth = gt[0].astype(np.float32)
+    support = np.full(depth.shape, 2, np.uint8)
+    support[:, :20] = 1  # the part only one source view confirmed
+    labels = {0: np.full(depth.shape, 7, np.int64)}
+    recorded = DenseDepth(["f0"], [depth], [np.full_like(depth, 0.01)], support=[support])
+    xyz, cls, cams = _dense_points(scene, recorded, labels, min_support=2)
+    assert len(xyz) == int((support >= 2).sum()) and np.all(cls == 7) and cams.shape == xyz.shape
+    assert np.allclose(xyz[:, 2], 0.0, atol=1e-4)  # back on the floor z = 0 the depths came from
+    assert len(_dense_points(scene, recorded, labels, min_support=0)[0]) == depth.size
+    unrecorded = DenseDepth(["f0"], [depth], [np.full_like(depth, 0.01)])
+    assert len(_dense_points(scene, unrecorded, labels, min_support=2)[0]) == depth.size

@@ -675,6 +675,8 @@ def test_plane_targets_give_stuff_pixels_their_depth_and_are_recorded(floor_room
     line = image_depth_lines(targets.info)[0]
     assert f"{info['planes']} stuff planes giving {info['targets']} targets" in line
     assert f"{on_things} plane-sweep depths on objects" in line
+    one = targets.info["dense_on_things_one_source"]
+    assert 0 <= one < on_things and (f"({one} confirmed by one source view)" in line) == (one > 0)
     # Sparse and plane sources differ only by the plane targets (and the sweep's depths on things).
     sparse = image_depth_targets(scene, frames, ImageDepthConfig(source="sparse"))
     assert len(sparse) == (~dense).sum()

@@ -136,13 +136,16 @@ def test_epipolar_check_rejects_matches_that_break_the_known_geometry():
 
 
 # ------------------------------------------------------------------------------------------ scenes
-def textured_plane_scene(root, n=4, k1=0.0):
+def textured_plane_scene(root, n=4, k1=0.0, c2w=None):
     """Cameras above a textured floor z = 0 (rendered exactly by ray casting onto the plane); ``k1`` != 0
-    makes them OPENCV cameras with that radial distortion."""
+    makes them OPENCV cameras with that radial distortion. ``c2w``: other camera poses (default: four on a
+    short arc, all looking at one spot)."""
     rng = np.random.default_rng(6)
     tex = cv2.GaussianBlur(rng.uniform(0, 255, (512, 512)).astype(np.float32), (0, 0), 2.0)
     tex = cv2.normalize(tex, None, 0, 255, cv2.NORM_MINMAX)
-    c2w = [look_at(np.array([-0.45 + 0.3 * k, -1.2, 1.6]), np.array([0.0, 0.3, 0.0])) for k in range(n)]
+    if c2w is None:
+        c2w = [look_at(np.array([-0.45 + 0.3 * k, -1.2, 1.6]), np.array([0.0, 0.3, 0.0])) for k in range(n)]
+    n = len(c2w)
     model = "OPENCV" if k1 else "PINHOLE"
     cams = Cameras(c2w=np.stack(c2w), fx=F, fy=F, cx=SIZE / 2, cy=SIZE / 2, width=SIZE, height=SIZE,
                    camera_model=model, distortion=[k1, 0, 0, 0, 0])
@@ -181,6 +184,40 @@ def test_plane_sweep_recovers_a_textured_plane(tmp_path, k1):
         rel = np.abs(d[valid] - gt[valid]) / gt[valid]
         assert np.median(rel) < 0.01 and np.mean(rel < 0.03) > 0.9
         assert np.all(s[valid] > 0) and np.all(s[~valid] == 0)
+
+
+@pytest.mark.parametrize("fewer", [True, False])
+def test_plane_sweep_gives_depth_where_only_one_source_view_sees_the_point(tmp_path, fewer):
+    # Cameras side by side looking the same way: the first view's left part holds floor that only the second
+    # view also sees (the end of a walk). Asking two sources there leaves it without depth.
+    c2w = [look_at(np.array([-0.9 + 0.5 * k, -1.2, 1.6]), np.array([-0.9 + 0.5 * k, 0.3, 0.0])) for k in range(4)]
+    depths = textured_plane_scene(tmp_path / "walk", c2w=c2w)
+    scene = load_scene(tmp_path / "walk")
+    cfg = SfmConfig()
+    cfg.dense.fewer_where_fewer_see = fewer
+    dense = plane_sweep_scene(scene, config=cfg)
+    cams = scene.cameras
+    # pixels of view 0 whose floor point lies in view 1's image but not in view 2's or view 3's
+    v, u = np.mgrid[0:SIZE, 0:SIZE]
+    x = cams.unproject(0, u.ravel() + 0.5, v.ravel() + 0.5, depths[0].ravel())
+    seen_by = [((uv >= 0) & (uv < SIZE)).all(1) & (z > 0) for uv, z in (cams.project(j, x) for j in (1, 2, 3))]
+    only_one = (seen_by[0] & ~seen_by[1] & ~seen_by[2]).reshape(SIZE, SIZE)
+    only_one[:, :4] = only_one[:, -4:] = False  # a ZNCC window needs the image around the pixel
+    assert only_one.sum() > 200
+    d = dense.depth[0]
+    if not fewer:
+        assert np.mean(d[only_one] > 0) < 0.05
+        return
+    got = only_one & (d > 0)
+    assert got.sum() > 0.5 * only_one.sum()
+    rel = np.abs(d[got] - depths[0][got]) / depths[0][got]
+    assert np.median(rel) < 0.01 and np.mean(rel < 0.03) > 0.9
+    # where two sources see the point, two still have to agree: depth as good as before
+    two = (seen_by[0] & seen_by[1]).reshape(SIZE, SIZE) & (d > 0)
+    assert np.mean(np.abs(d[two] - depths[0][two]) / depths[0][two] < 0.03) > 0.9
+    # the support says which is which: one source confirmed the first, two or more the second
+    n = dense.support[0]
+    assert np.all(n[got] == 1) and np.mean(n[two] >= 2) > 0.9 and np.all(n[d == 0] == 0)
 
 
 def test_triangulation_with_distorted_cameras(tmp_path):
@@ -284,7 +321,17 @@ def test_sparse_points_and_mvs_depth_round_trip(tmp_path):
     d, s = scene.mvs_depth(1)
     np.testing.assert_allclose(d, depth, atol=5e-4)
     assert np.all(s[depth > 0] == pytest.approx(1e-3)) and np.all(s[depth == 0] == 0)
+    assert scene.mvs_support(1) is None  # not recorded
     scene.validate()
+    # with how many views confirmed each depth; 0 where there is none
+    support = np.where(np.arange(SIZE)[None, :] < 20, 1, 3).astype(np.uint8) * (depth > 0)
+    write_mvs_depth(tmp_path / "s", DenseDepth(["f1"], [depth], [sigma], support=[support]), 1e-3)
+    scene = load_scene(tmp_path / "s")
+    assert np.array_equal(scene.mvs_support(1), support) and scene.mvs_support(0) is None
+    scene.validate()
+    # written again without it: the frame no longer refers to the old map
+    write_mvs_depth(tmp_path / "s", DenseDepth(["f1"], [depth], [sigma]), 1e-3)
+    assert load_scene(tmp_path / "s").mvs_support(1) is None
 
 
 @pytest.mark.parametrize("corrupt,problem", [

@@ -134,6 +134,7 @@ class Frame:
     gt_c2w: np.ndarray | None = None
     mvs_depth_path: Path | None = None
     mvs_sigma_path: Path | None = None
+    mvs_support_path: Path | None = None
 
 
 @dataclass
@@ -344,6 +345,16 @@ class Scene:
             raise InputError(f.mvs_sigma_path, "sigma must be positive wherever the MVS depth is")
         return d, s
 
+    def mvs_support(self, i: int) -> np.ndarray | None:
+        """How many source views confirmed each multi-view-stereo depth of frame ``i`` (``int32 [H, W]``,
+        0 where there is no depth), or None when the frame does not record it."""
+        f = self.frames[i]
+        if f.mvs_support_path is None:
+            return None
+        n = read_label_map(f.mvs_support_path)
+        self._check_size(i, f.mvs_support_path, n, "MVS support map")
+        return n
+
     def gt_points(self) -> dict[str, np.ndarray] | None:
         """``gt/points.ply`` as arrays (``xyz``, ``semantic``, ``instance``), or None."""
         if self.gt_points_path is None:
@@ -365,6 +376,7 @@ class Scene:
             self.gt_depth(i)
             self.mask(i)
             self.mvs_depth(i)
+            self.mvs_support(i)
         self.gt_points()
         self.sparse_points()
 
@@ -600,7 +612,7 @@ def load_scene(root: str | Path) -> Scene:
             if gt_c2w.shape != (4, 4) or not np.all(np.isfinite(gt_c2w)) or not is_rigid(gt_c2w, atol=1e-3):
                 raise InputError(tpath, f"frames[{k}].gt_transform_matrix: must be a finite rigid 4x4 matrix")
             frame.gt_c2w = gt_c2w
-        for key in ("mvs_depth_file_path", "mvs_sigma_file_path"):
+        for key in ("mvs_depth_file_path", "mvs_sigma_file_path", "mvs_support_file_path"):
             if key in fr:
                 setattr(frame, key.replace("_file", ""), _resolve(root, fr[key], tpath, f"frames[{k}].{key}"))
         frames.append(frame)

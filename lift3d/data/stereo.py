@@ -27,7 +27,8 @@ array           dtype / shape      meaning
     "sparse_points": {"points": "sparse/points3D.ply", "observations": "sparse/observations.npz",
                       "source": "lift3d triangulate", "count": 1234, "median_error_px": 0.61, ...}
 
-and, per frame, ``"mvs_depth_file_path"`` / ``"mvs_sigma_file_path"`` for the dense maps.
+and, per frame, ``"mvs_depth_file_path"`` / ``"mvs_sigma_file_path"`` for the dense maps, and
+``"mvs_support_file_path"`` (optional) for how many source views confirmed each depth.
 """
 
 from __future__ import annotations
@@ -40,7 +41,7 @@ from typing import Any, Callable, Sequence
 import numpy as np
 from plyfile import PlyData, PlyElement
 
-from lift3d.data.images import write_depth
+from lift3d.data.images import write_depth, write_label_map
 from lift3d.errors import InputError
 from lift3d.utils.atomic import write_bytes_atomic, write_json_atomic
 from lift3d.utils.files import read_json
@@ -49,6 +50,7 @@ POINTS_FILE = "sparse/points3D.ply"
 OBSERVATIONS_FILE = "sparse/observations.npz"
 MVS_DEPTH_DIR = "mvs/depth"
 MVS_SIGMA_DIR = "mvs/sigma"
+MVS_SUPPORT_DIR = "mvs/support"
 
 _OBS_ARRAYS = ("frame_names", "frame", "point", "uv", "depth", "sigma")
 
@@ -135,12 +137,17 @@ class DenseDepth:
         ``float32 [H, W]`` its standard deviation, 0 where there is no depth.
     info : dict
         Provenance and statistics (coverage, seconds), recorded in ``transforms.json``.
+    support : list of np.ndarray, optional
+        ``uint8 [H, W]`` how many source views confirmed each depth (:mod:`lift3d.sfm.mvs`: the fewer of the
+        photo-consistency's sources that saw the point and the sources whose depth agreed), 0 where there is
+        none; None when not recorded (every depth counts as confirmed by as many views as the sweep asks).
     """
 
     frame_names: list[str]
     depth: list
     sigma: list
     info: dict = field(default_factory=dict)
+    support: list | None = None
 
     def __len__(self) -> int:
         return len(self.frame_names)
@@ -199,15 +206,21 @@ def update_transforms(root: str | Path, change: Callable[[dict], Any]) -> None:
 
 def write_mvs_maps(root: str | Path, dense: DenseDepth, unit_scale: float) -> dict:
     """Write ``mvs/depth/<name>.png`` and ``mvs/sigma/<name>.png`` under ``root`` (uint16 in ``unit_scale``
-    metres, 0 = no depth; a sigma below one unit is stored as one unit, since 0 would read as 'no depth').
+    metres, 0 = no depth; a sigma below one unit is stored as one unit, since 0 would read as 'no depth'), and
+    ``mvs/support/<name>.png`` (source views that confirmed each depth) when the maps record it.
     Returns the ``mvs_depth`` summary entry."""
     root = Path(root)
-    for name, d, s in zip(dense.frame_names, dense.depth, dense.sigma):
+    supports = dense.support if dense.support is not None else [None] * len(dense)
+    for name, d, s, n in zip(dense.frame_names, dense.depth, dense.sigma, supports):
         write_depth(root / MVS_DEPTH_DIR / f"{name}.png", d, unit_scale)
         s = np.where(d > 0, np.maximum(s, unit_scale), 0.0)
         write_depth(root / MVS_SIGMA_DIR / f"{name}.png", s, unit_scale)
-    return {"depth_dir": MVS_DEPTH_DIR, "sigma_dir": MVS_SIGMA_DIR, "frames": len(dense),
-            "coverage": round(dense.coverage, 4), **dense.info}
+        if n is not None:
+            write_label_map(root / MVS_SUPPORT_DIR / f"{name}.png", np.where(d > 0, n, 0))
+    dirs = {"depth_dir": MVS_DEPTH_DIR, "sigma_dir": MVS_SIGMA_DIR}
+    if dense.support is not None:
+        dirs["support_dir"] = MVS_SUPPORT_DIR
+    return {**dirs, "frames": len(dense), "coverage": round(dense.coverage, 4), **dense.info}
 
 
 def write_mvs_depth(root: str | Path, dense: DenseDepth, unit_scale: float) -> dict:
@@ -222,6 +235,10 @@ def write_mvs_depth(root: str | Path, dense: DenseDepth, unit_scale: float) -> d
             if name in wanted:
                 fr["mvs_depth_file_path"] = f"{MVS_DEPTH_DIR}/{name}.png"
                 fr["mvs_sigma_file_path"] = f"{MVS_SIGMA_DIR}/{name}.png"
+                if dense.support is not None:
+                    fr["mvs_support_file_path"] = f"{MVS_SUPPORT_DIR}/{name}.png"
+                else:
+                    fr.pop("mvs_support_file_path", None)
         meta["mvs_depth"] = entry
 
     update_transforms(root, change)

@@ -118,6 +118,11 @@ class DenseConfig:
     """Grey-level standard deviation the reference window needs (ZNCC on flat patches is noise)."""
     consistent_views: int = 2
     """Geometric filter: a depth is kept when at least this many source views' depth maps agree with it."""
+    fewer_where_fewer_see: bool = True
+    """Where fewer source views than ``best_k`` (``consistent_views``) have a point inside their image, as at
+    the ends of a capture, the photo-consistency (geometric filter) asks only those that do, and the depth's
+    support records it; false: such points get no depth (a shelf only two training views see at the end of a
+    walk had none)."""
     consistency_pixels: float = 1.0
     """Geometric filter: reference -> source -> reference reprojection distance in pixels."""
     consistency_depth: float = 0.02

@@ -10,14 +10,20 @@ For each reference view and its best source views (the pair selection of :mod:`l
    ``H = K_s (R + t nᵀ / d) K_r⁻¹`` (``cv2.warpPerspective``).
 2. **Photo-consistency**: zero-mean normalised cross-correlation over ``window`` x ``window`` patches, from
    box filters (``cv2.boxFilter``) of the images, their squares and products. Per plane the cost is the mean
-   of the ``best_k`` best sources (robust to occlusion: a source that does not see the point is ignored).
+   of the ``best_k`` best sources (robust to occlusion: a source that does not see the point is ignored), or of
+   as many sources as have the point inside their image when fewer do (``fewer_where_fewer_see``: the ends
+   of a capture).
 3. **Winner-take-all** over the planes, refined between planes by a parabola through the neighbouring
    costs (in inverse depth). Kept when the winner's ZNCC reaches ``min_zncc``, beats every plane more than
    two planes away by ``min_margin`` (uniqueness) and the reference window has texture (``min_texture``).
 4. **Geometric consistency**: a depth is kept when, for at least ``consistent_views`` source views, the
    point reprojected into the source, lifted with the source's own depth and projected back lands within
-   ``consistency_pixels`` of where it started with a depth within ``consistency_depth`` (relative). The
-   kept depth is the mean of the consistent estimates.
+   ``consistency_pixels`` of where it started with a depth within ``consistency_depth`` (relative); with
+   ``fewer_where_fewer_see``, every source whose image holds the point suffices when fewer do. The kept depth
+   is the mean of the consistent estimates.
+5. **Support**: how many sources confirmed each depth, the fewer of step 2's (the sources heard) and step 4's
+   (the sources that agreed): ``DenseDepth.support``. A consumer that needs well-confirmed depths (the plane
+   fit of :mod:`lift3d.train.image_depth`) leaves out those one source confirmed.
 
 **Sigma.** With ``g_s = |dp_s / dd|`` the image motion (pixels per world unit of reference depth) of the
 point in source ``s`` at the chosen depth, and ``σ_m`` = ``match_sigma`` the matching precision in pixels,
@@ -122,18 +128,21 @@ def plane_range(k_ref: np.ndarray, k_src: Sequence[np.ndarray], rel: Sequence[tu
     return np.linspace(q_lo, q_hi, n)
 
 
-def _sweep_direction(ref, var_r, mu_r, sources, k_ref, k_src, rel, normal, qs, near, far, config):
-    """Cost volume along one plane direction; returns per pixel the winner's cost, its depth, the
-    uniqueness margin, whether it is an interior plane, and each source's ZNCC at the winner."""
+def _sweep_direction(ref, var_r, mu_r, sources, k_ref, k_src, rel, normal, qs, near, far, config, rules):
+    """Cost volumes along one plane direction, one per aggregation rule (``rules``: False = the mean of the
+    best ``best_k`` sources, True = of as many as hold the point when fewer do). Returns per rule and pixel
+    the winner's cost, its depth, the uniqueness margin, whether it is an interior plane, each source's ZNCC
+    at the winner and how many sources' images held the winner's point."""
     h, w = ref.shape
     win = config.window
     n_src = len(sources)
     k_best = min(config.best_k, n_src)
     c_pix = (_pixel_rays(k_ref, h, w) @ normal).astype(np.float32)  # nᵀ ray per pixel: z = 1 / (q c)
     min_var = config.min_texture**2 * 0.25  # sources need some texture too (ZNCC of a flat patch is noise)
-    cost = np.empty((len(qs), h, w), np.float32)
-    best_zncc = np.full((h, w), -np.inf, np.float32)
-    best_src = np.zeros((n_src, h, w), np.float32)
+    cost = [np.empty((len(qs), h, w), np.float32) for _ in rules]
+    best_zncc = [np.full((h, w), -np.inf, np.float32) for _ in rules]
+    best_src = [np.zeros((n_src, h, w), np.float32) for _ in rules]
+    best_covering = [np.zeros((h, w), np.int32) for _ in rules]
     # H(q) = A + q B (plane_homography is linear in q): two matrices per source instead of one per plane.
     hom_a = [plane_homography(k_ref, ks, r_rel, t_rel, normal, 0.0) for ks, (r_rel, t_rel) in zip(k_src, rel)]
     hom_b = [plane_homography(k_ref, ks, r_rel, t_rel, normal, 1.0) - a
@@ -145,6 +154,7 @@ def _sweep_direction(ref, var_r, mu_r, sources, k_ref, k_src, rel, normal, qs, n
         in_range = (z_plane > lo) & (z_plane < hi)
         zs = np.empty((n_src, h, w), np.float32)
         top = np.full((k_best, h, w), -1.0, np.float32)  # the k best ZNCCs so far, sorted high to low
+        covering = np.zeros((h, w), np.int32)  # sources whose image holds the point
         for s, src in enumerate(sources):
             hom = hom_a[s] + q * hom_b[s]
             # Outside the source reads -1e4 (a pixel that interpolates with it goes negative), is marked and
@@ -152,6 +162,7 @@ def _sweep_direction(ref, var_r, mu_r, sources, k_ref, k_src, rel, normal, qs, n
             img = cv2.warpPerspective(src, hom, (w, h), flags=cv2.INTER_LINEAR | cv2.WARP_INVERSE_MAP,
                                       borderMode=cv2.BORDER_CONSTANT, borderValue=-1e4)
             inside = img >= 0
+            covering += inside
             np.maximum(img, 0.0, out=img)
             stats = _box(np.dstack([img, img * img, img * ref]), win)
             mu_s = stats[..., 0]
@@ -164,12 +175,26 @@ def _sweep_direction(ref, var_r, mu_r, sources, k_ref, k_src, rel, normal, qs, n
                 hi_j = np.maximum(top[j], z)
                 z = np.minimum(top[j], z)
                 top[j] = hi_j
-        agg = np.where(in_range, top.mean(0), np.float32(-1.0))
-        cost[p] = 1.0 - agg
-        better = agg > best_zncc
-        best_zncc = np.where(better, agg, best_zncc)
-        best_src = np.where(better[None], zs, best_src)
-    n = len(qs)
+        for r, fewer in enumerate(rules):
+            if fewer and k_best > 1:
+                # the mean of the best min(K, covering) sources: sources that cannot see the point do not vote
+                m = np.clip(covering, 1, k_best)
+                agg = np.take_along_axis(np.cumsum(top, axis=0), (m - 1)[None], axis=0)[0] / m
+            else:
+                agg = top.mean(0)
+            agg = np.where(in_range, agg, np.float32(-1.0))
+            cost[r][p] = 1.0 - agg
+            better = agg > best_zncc[r]
+            np.copyto(best_zncc[r], agg, where=better)  # in place: this runs per plane and rule
+            np.copyto(best_src[r], zs, where=better[None])
+            np.copyto(best_covering[r], covering, where=better)
+    return [_winner(cost[r], qs, c_pix) + (best_src[r], best_covering[r]) for r in range(len(rules))]
+
+
+def _winner(cost: np.ndarray, qs: np.ndarray, c_pix: np.ndarray) -> tuple[np.ndarray, ...]:
+    """Winner-take-all over a ``[P, H, W]`` cost volume, refined by a parabola: the winner's cost, its depth,
+    the uniqueness margin and whether it is an interior plane."""
+    n, h, w = cost.shape
     idx = cost.argmin(0)
     rows, cols = np.indices((h, w))
     c0 = cost[idx, rows, cols]
@@ -186,12 +211,13 @@ def _sweep_direction(ref, var_r, mu_r, sources, k_ref, k_src, rel, normal, qs, n
     planes = np.arange(n)[:, None, None]
     far_cost = np.where(np.abs(planes - idx[None]) > 2, cost, np.inf).min(0)
     margin = far_cost - c0
-    return c0, np.nan_to_num(depth, nan=0.0, posinf=0.0, neginf=0.0), margin, interior, best_src
+    return c0, np.nan_to_num(depth, nan=0.0, posinf=0.0, neginf=0.0), margin, interior
 
 
 def sweep_view(ref: np.ndarray, sources: Sequence[np.ndarray], k_ref: np.ndarray, k_src: Sequence[np.ndarray],
                rel: Sequence[tuple[np.ndarray, np.ndarray]], near: float, far: float, config: DenseConfig,
-               normals: Sequence[np.ndarray] = (np.array([0.0, 0.0, 1.0]),)) -> tuple[np.ndarray, np.ndarray]:
+               normals: Sequence[np.ndarray] = (np.array([0.0, 0.0, 1.0]),), rules: Sequence[bool] = (False,)
+               ) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
     """Plane sweep of one reference view, along one or more plane directions.
 
     Parameters
@@ -210,13 +236,16 @@ def sweep_view(ref: np.ndarray, sources: Sequence[np.ndarray], k_ref: np.ndarray
     normals : sequence of np.ndarray
         Plane normals in reference camera coordinates; ``(0, 0, 1)`` is fronto-parallel. Each pixel takes
         the direction whose best plane is most photo-consistent.
+    rules : sequence of bool
+        Photo-consistency rules, each giving its own maps from the same warps: False = the mean of the best
+        ``best_k`` sources; True = of as many as hold the point when fewer do (``fewer_where_fewer_see``).
 
     Returns
     -------
-    depth : np.ndarray
-        ``float32 [H, W]`` z-depth, 0 where rejected.
-    sigma : np.ndarray
-        ``float32 [H, W]`` standard deviation of the depth, 0 where rejected.
+    list of (depth, sigma, support)
+        One per rule: ``float32 [H, W]`` z-depth, 0 where rejected; ``float32 [H, W]`` its standard deviation,
+        0 where rejected; ``uint8 [H, W]`` the sources the photo-consistency heard (of the best ``best_k``,
+        those whose image holds the point), 0 where rejected.
     """
     h, w = ref.shape
     win = config.window
@@ -228,17 +257,25 @@ def sweep_view(ref: np.ndarray, sources: Sequence[np.ndarray], k_ref: np.ndarray
         qs = plane_range(k_ref, k_src, rel, normal, near, far, (h, w), config)
         if len(qs) < 3:
             continue
-        res = list(_sweep_direction(ref, var_r, mu_r, sources, k_ref, k_src, rel, normal, qs, near, far, config))
+        res = [list(x) for x in _sweep_direction(ref, var_r, mu_r, sources, k_ref, k_src, rel, normal, qs, near,
+                                                  far, config, rules)]
         if best is None:
             best = res
             continue
-        take = res[0] < best[0]
-        for k in range(4):
-            best[k] = np.where(take, res[k], best[k])
-        best[4] = np.where(take[None], res[4], best[4])
+        for b, x in zip(best, res):
+            take = x[0] < b[0]
+            for k in (0, 1, 2, 3, 5):
+                b[k] = np.where(take, x[k], b[k])
+            b[4] = np.where(take[None], x[4], b[4])
     if best is None:
-        return np.zeros((h, w), np.float32), np.zeros((h, w), np.float32)
-    c0, depth, margin, interior, best_src = best
+        empty = (np.zeros((h, w), np.float32), np.zeros((h, w), np.float32), np.zeros((h, w), np.uint8))
+        return [empty for _ in rules]
+    return [_accept(ref, var_r, k_ref, k_src, rel, config, *b) for b in best]
+
+
+def _accept(ref, var_r, k_ref, k_src, rel, config, c0, depth, margin, interior, best_src, covering):
+    """The winners that pass the ZNCC, uniqueness and texture tests, with their sigma and support."""
+    h, w = ref.shape
     zncc = 1.0 - c0
     ok = ((var_r >= config.min_texture**2) & interior & (zncc >= config.min_zncc) & (margin >= config.min_margin)
           & (depth > 0))
@@ -256,27 +293,33 @@ def sweep_view(ref: np.ndarray, sources: Sequence[np.ndarray], k_ref: np.ndarray
         info += np.where(agree, du * du + dv * dv, 0.0)
     sigma = config.match_sigma / np.sqrt(np.maximum(info, 1e-12))
     ok &= info > 0
-    return (np.where(ok, depth, 0.0).astype(np.float32), np.where(ok, sigma, 0.0).astype(np.float32))
+    support = np.where(ok, np.minimum(covering, min(config.best_k, len(k_src))), 0).astype(np.uint8)
+    return (np.where(ok, depth, 0.0).astype(np.float32), np.where(ok, sigma, 0.0).astype(np.float32), support)
 
 
-def geometric_filter(depths: list[np.ndarray], sigmas: list[np.ndarray], ks: list[np.ndarray],
-                     r: np.ndarray, t: np.ndarray, neighbours: list[np.ndarray],
-                     config: DenseConfig) -> tuple[list[np.ndarray], list[np.ndarray]]:
-    """Keep depths that at least ``consistent_views`` source depth maps agree with; average them."""
-    out_d, out_s = [], []
-    for v, (d, s) in enumerate(zip(depths, sigmas)):
+def geometric_filter(depths: list[np.ndarray], sigmas: list[np.ndarray], supports: list[np.ndarray],
+                     ks: list[np.ndarray], r: np.ndarray, t: np.ndarray, neighbours: list[np.ndarray],
+                     config: DenseConfig, fewer: bool = False
+                     ) -> tuple[list[np.ndarray], list[np.ndarray], list[np.ndarray]]:
+    """Keep depths that at least ``consistent_views`` source depth maps agree with (``fewer``: or every source
+    whose image holds the point, when fewer do); average them. A kept depth's support becomes the smaller of
+    its photo-consistency support and the agreeing sources."""
+    out_d, out_s, out_n = [], [], []
+    for v, (d, s, n_photo) in enumerate(zip(depths, sigmas, supports)):
         h, w = d.shape
         valid = d > 0
         rows, cols = np.nonzero(valid)
         if config.consistent_views == 0 or len(rows) == 0:
             out_d.append(d)
             out_s.append(s)
+            out_n.append(n_photo)
             continue
         z = d[rows, cols].astype(np.float64)
         k = ks[v]
         x_cam = np.column_stack([((cols + 0.5) - k[0, 2]) / k[0, 0] * z, ((rows + 0.5) - k[1, 2]) / k[1, 1] * z, z])
         x_w = (x_cam - t[v]) @ r[v]  # Rᵀ (X - t)
         count = np.zeros(len(z), np.int64)
+        covering = np.zeros(len(z), np.int64)  # neighbours whose image holds the point
         z_sum = z.copy()
         z_sq = z * z
         for n in neighbours[v]:
@@ -288,6 +331,7 @@ def geometric_filter(depths: list[np.ndarray], sigmas: list[np.ndarray], ks: lis
                 vn = kn[1, 1] * xn[:, 1] / xn[:, 2] + kn[1, 2]
             hn, wn = dn.shape
             inside = (xn[:, 2] > 0) & (un >= 0) & (un < wn) & (vn >= 0) & (vn < hn)
+            covering += inside
             ci = np.clip(np.nan_to_num(un, nan=0.0).astype(np.int64), 0, wn - 1)
             ri = np.clip(np.nan_to_num(vn, nan=0.0).astype(np.int64), 0, hn - 1)
             zn = np.where(inside, dn[ri, ci], 0.0).astype(np.float64)
@@ -304,16 +348,21 @@ def geometric_filter(depths: list[np.ndarray], sigmas: list[np.ndarray], ks: lis
             count += agree
             z_sum += np.where(agree, xr2[:, 2], 0.0)
             z_sq += np.where(agree, xr2[:, 2] ** 2, 0.0)
-        keep = count >= config.consistent_views
+        need = np.clip(covering, 1, config.consistent_views) if fewer else config.consistent_views
+        keep = count >= need
         mean = z_sum / (count + 1)
         spread = np.sqrt(np.maximum(z_sq / (count + 1) - mean**2, 0.0))
         nd = np.zeros_like(d)
         ns = np.zeros_like(s)
-        nd[rows[keep], cols[keep]] = mean[keep]
-        ns[rows[keep], cols[keep]] = np.maximum(s[rows[keep], cols[keep]], spread[keep])
+        nn = np.zeros_like(n_photo)
+        rk, ck = rows[keep], cols[keep]
+        nd[rk, ck] = mean[keep]
+        ns[rk, ck] = np.maximum(s[rk, ck], spread[keep])
+        nn[rk, ck] = np.minimum(n_photo[rk, ck], np.minimum(count[keep], 255))
         out_d.append(nd)
         out_s.append(ns)
-    return out_d, out_s
+        out_n.append(nn)
+    return out_d, out_s, out_n
 
 
 def _depth_range(v: int, frame_index: int, graph, sparse: SparsePoints | None) -> tuple[float, float]:
@@ -391,14 +440,19 @@ def plane_sweep_scene(scene: Scene, frames: Sequence[int] | None = None, config:
     if sparse is not None:
         sparse_index = {n: k for k, n in enumerate(sparse.frame_names)}
     up = scene_up(cams) if dc.sweep_up else None
-    depths, sigmas, used = [], [], []
+    # the full rule first; the one for points fewer sources see fills only where the full rule found nothing
+    rules = (False, True) if dc.fewer_where_fewer_see else (False,)
+    maps = [([], [], []) for _ in rules]  # per rule: depths, sigmas, supports
+    used = []
     t0 = time.perf_counter()
     for v in progress_bar(range(len(frames)), desc="plane sweep", unit="view", disable=not progress):
         nb = graph.ranked(v, dc.target_angle)[:dc.neighbors]
         used.append(nb)
         if len(nb) == 0:
-            depths.append(np.zeros_like(greys[v]))
-            sigmas.append(np.zeros_like(greys[v]))
+            for m in maps:
+                m[0].append(np.zeros_like(greys[v]))
+                m[1].append(np.zeros_like(greys[v]))
+                m[2].append(np.zeros(greys[v].shape, np.uint8))
             continue
         near, far = _depth_range(v, sparse_index.get(names[v], -1), graph, sparse)
         rel = []
@@ -408,41 +462,48 @@ def plane_sweep_scene(scene: Scene, frames: Sequence[int] | None = None, config:
         normals = [np.array([0.0, 0.0, 1.0])]
         if up is not None:
             normals.append(r[v] @ up)
-        d, s = sweep_view(greys[v], [greys[n] for n in nb], ks[v], [ks[n] for n in nb], rel, near, far, dc,
-                          normals)
-        depths.append(d)
-        sigmas.append(s)
+        for m, res in zip(maps, sweep_view(greys[v], [greys[n] for n in nb], ks[v], [ks[n] for n in nb], rel, near,
+                                           far, dc, normals, rules)):
+            for a, x in zip(m, res):
+                a.append(x)
     seconds = {"sweep": time.perf_counter() - t0}
     t0 = time.perf_counter()
-    depths, sigmas = geometric_filter(depths, sigmas, ks, r, t, used, dc)
+    depths, sigmas, supports = geometric_filter(*maps[0], ks, r, t, used, dc)
+    if len(rules) > 1:
+        # Where the full rule kept no depth, the depth kept by the fewer-sources rule, with support 1: the plane
+        # fit leaves such depths out, so it sees exactly what the full rule gives (it is sensitive to its input).
+        extra = geometric_filter(*maps[1], ks, r, t, used, dc, fewer=True)
+        for v in range(len(frames)):
+            add = (depths[v] <= 0) & (extra[0][v] > 0)
+            depths[v] = np.where(add, extra[0][v], depths[v])
+            sigmas[v] = np.where(add, extra[1][v], sigmas[v])
+            supports[v] = np.where(add, np.minimum(extra[2][v], 1), supports[v]).astype(np.uint8)
     seconds["consistency"] = time.perf_counter() - t0
-    out_d, out_s = [], []
+    out_d, out_s, out_n = [], [], []
     for v in range(len(frames)):
         w, h = sizes[v]
-        d, s = depths[v], sigmas[v]
+        maps = (depths[v], sigmas[v], supports[v])
         if cams.has_distortion:
-            d, s = _redistort(d, s, cams, v, ks[v])
-        elif d.shape != (h, w):
-            d = cv2.resize(d, (w, h), interpolation=cv2.INTER_NEAREST)
-            s = cv2.resize(s, (w, h), interpolation=cv2.INTER_NEAREST)
-        out_d.append(d.astype(np.float32))
-        out_s.append(s.astype(np.float32))
+            maps = _redistort(maps, cams, v)
+        elif maps[0].shape != (h, w):
+            maps = tuple(cv2.resize(m, (w, h), interpolation=cv2.INTER_NEAREST) for m in maps)
+        out_d.append(maps[0].astype(np.float32))
+        out_s.append(maps[1].astype(np.float32))
+        out_n.append(maps[2].astype(np.uint8))
     seconds["total"] = time.perf_counter() - t_start
-    dense = DenseDepth(names, out_d, out_s)
+    dense = DenseDepth(names, out_d, out_s, support=out_n)
     dense.info = {"source": "lift3d triangulate --dense", "seconds": {k: round(v, 3) for k, v in seconds.items()},
                   "warnings": warnings}
     return dense
 
 
-def _redistort(d: np.ndarray, s: np.ndarray, cams: Cameras, v: int, k_small: np.ndarray):
+def _redistort(maps: Sequence[np.ndarray], cams: Cameras, v: int) -> tuple[np.ndarray, ...]:
     """Resample maps computed on the undistorted (and possibly downscaled) image onto the original pixels."""
     w, h = int(cams.width[v]), int(cams.height[v])
     rows, cols = np.indices((h, w))
     uv = np.column_stack([cols.ravel() + 0.5, rows.ravel() + 0.5])
     p = ideal_pixels(cams, v, uv)
-    sx, sy = d.shape[1] / w, d.shape[0] / h
+    sx, sy = maps[0].shape[1] / w, maps[0].shape[0] / h
     mx = (p[:, 0] * sx - 0.5).reshape(h, w).astype(np.float32)
     my = (p[:, 1] * sy - 0.5).reshape(h, w).astype(np.float32)
-    dd = cv2.remap(d, mx, my, cv2.INTER_NEAREST, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
-    ss = cv2.remap(s, mx, my, cv2.INTER_NEAREST, borderMode=cv2.BORDER_CONSTANT, borderValue=0)
-    return dd, ss
+    return tuple(cv2.remap(m, mx, my, cv2.INTER_NEAREST, borderMode=cv2.BORDER_CONSTANT, borderValue=0) for m in maps)

@@ -153,12 +153,18 @@ def image_depth_targets(scene: Scene, frames: np.ndarray, cfg: ImageDepthConfig,
             # the planes hold stuff only: objects get the plane sweep's depths where the labels see one
             rows = _dense_rows(scene, dense, targets_for)
             on_thing = np.zeros(len(rows[0]), bool)
+            one_source = np.zeros(len(rows[0]), bool)
+            support = dict(zip(dense.frame_names, dense.support)) if dense.support is not None else {}
             for i in np.unique(rows[0]):
                 k = np.flatnonzero(rows[0] == i)
                 sem = labels[int(i)]  # targets_for is a subset of the training frames
-                on_thing[k] = np.isin(sem[rows[2][k].astype(np.int64), rows[1][k].astype(np.int64)], scene.thing_ids)
+                r, c = rows[2][k].astype(np.int64), rows[1][k].astype(np.int64)
+                on_thing[k] = np.isin(sem[r, c], scene.thing_ids)
+                if scene.frames[int(i)].name in support:
+                    one_source[k] = np.asarray(support[scene.frames[int(i)].name])[r, c] == 1
             parts.append(tuple(a[on_thing] for a in rows))
             info["dense_on_things"] = int(on_thing.sum())
+            info["dense_on_things_one_source"] = int((on_thing & one_source).sum())
     frame, u, v, z, sigma, dense_flag = (np.concatenate(a) for a in zip(*parts))
     finite = np.isfinite(z) & np.isfinite(sigma) & (z > 0) & (sigma > 0)
     targets = DepthTargets(frame[finite], u[finite], v[finite], z[finite], sigma[finite], dense_flag[finite], info)
@@ -233,6 +239,28 @@ def scene_diagonal(scene: Scene, sparse: SparsePoints | None = None) -> float:
     return float(np.linalg.norm(pts.max(0) - pts.min(0)))
 
 
+def _dense_points(scene: Scene, dense: DenseDepth, labels: dict[int, np.ndarray], min_support: int
+                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The plane sweep's depths as world points ``[N, 3]``, their pixels' classes ``[N]`` and their cameras'
+    centres ``[N, 3]``, leaving out depths fewer than ``min_support`` source views confirmed (when recorded)."""
+    index = {f.name: k for k, f in enumerate(scene.frames)}
+    supports = dense.support if dense.support is not None else [None] * len(dense)
+    xyz, cls, cams = [np.zeros((0, 3))], [np.zeros(0, np.int64)], [np.zeros((0, 3))]
+    for name, depth, support in zip(dense.frame_names, dense.depth, supports):
+        i = index[name]
+        depth = np.asarray(depth)
+        use = depth > 0
+        if support is not None:
+            use &= np.asarray(support) >= min_support
+        r, c = np.nonzero(use)
+        if not len(r):
+            continue
+        o, d = scene.cameras.rays(i, c, r)
+        xyz.append(o + d * (depth[r, c] / (d @ scene.cameras.c2w_opencv[i][:3, 2]))[:, None])
+        cls.append(labels[i][r, c].astype(np.int64)), cams.append(o)
+    return np.concatenate(xyz), np.concatenate(cls), np.concatenate(cams)
+
+
 def _plane_rows(scene: Scene, sparse: SparsePoints, dense: DenseDepth, frames: np.ndarray, targets_for: np.ndarray,
                 labels: dict[int, np.ndarray], cfg: ImageDepthConfig):
     """Targets where the rays of stuff-labelled pixels first meet a plane holding their class.
@@ -271,14 +299,8 @@ def _plane_rows(scene: Scene, sparse: SparsePoints, dense: DenseDepth, frames: n
     xyz, cls = [sparse.xyz], [point_classes(sparse.obs_point, obs_class, len(sparse))]
     cams, seen_xyz = [scene.cameras.centers[sparse.obs_frame]], [sparse.xyz[sparse.obs_point]]
     index = {f.name: k for k, f in enumerate(scene.frames)}
-    for name, depth in zip(dense.frame_names, dense.depth):
-        i = index[name]
-        r, c = np.nonzero(np.asarray(depth) > 0)
-        if not len(r):
-            continue
-        o, d = scene.cameras.rays(i, c, r)
-        p = o + d * (np.asarray(depth)[r, c] / (d @ scene.cameras.c2w_opencv[i][:3, 2]))[:, None]
-        xyz.append(p), cls.append(labels[i][r, c]), cams.append(o), seen_xyz.append(p)
+    p, c, o = _dense_points(scene, dense, labels, cfg.plane_min_support)
+    xyz.append(p), cls.append(c), cams.append(o), seen_xyz.append(p)
     xyz, cls = np.concatenate(xyz), np.concatenate(cls).astype(np.int64)
     cams, seen_xyz = np.concatenate(cams), np.concatenate(seen_xyz)
 
@@ -633,12 +655,17 @@ def _dense_maps(scene: Scene, frames: np.ndarray, sparse: SparsePoints, cache: P
     names = [scene.frames[int(i)].name for i in frames]
     if all(scene.frames[int(i)].mvs_depth_path is not None for i in frames):
         maps = [scene.mvs_depth(int(i)) for i in frames]
-        return DenseDepth(names, [m[0] for m in maps], [m[1] for m in maps]), "scene (mvs_depth_file_path)"
+        supports = [scene.mvs_support(int(i)) for i in frames]
+        return DenseDepth(names, [m[0] for m in maps], [m[1] for m in maps],
+                          support=supports if all(n is not None for n in supports) else None), \
+            "scene (mvs_depth_file_path)"
     path = None if cache is None else cache / "mvs.npz"
     if path is not None and path.is_file():
         with np.load(path, allow_pickle=False) as z:
             if [str(n) for n in z["names"]] == names:
-                return DenseDepth(names, list(z["depth"]), list(z["sigma"])), "plane sweep (cached)"
+                support = list(z["support"]) if "support" in z.files else None
+                return DenseDepth(names, list(z["depth"]), list(z["sigma"]), support=support), \
+                    "plane sweep (cached)"
     # here, not at module level: keeps `import lift3d.train` cheap (the plane sweep's OpenCV code loads only
     # when a run uses it)
     from lift3d.sfm import plane_sweep_scene
@@ -647,7 +674,7 @@ def _dense_maps(scene: Scene, frames: np.ndarray, sparse: SparsePoints, cache: P
     if path is not None:
         buf = io.BytesIO()
         np.savez_compressed(buf, names=np.asarray(names, dtype=str), depth=np.stack(dense.depth),
-                            sigma=np.stack(dense.sigma))
+                            sigma=np.stack(dense.sigma), support=np.stack(dense.support))
         write_bytes_atomic(path, buf.getvalue())
     return dense, "plane sweep"
 

@@ -576,6 +576,8 @@ def image_depth_lines(info: dict | None) -> list[str]:
                         if planes.get("standing") else ""))
         if info.get("dense_on_things"):
             text += f", {info['dense_on_things']} plane-sweep depths on objects"
+            if info.get("dense_on_things_one_source"):
+                text += f" ({info['dense_on_things_one_source']} confirmed by one source view)"
         text += f"; {info.get('seconds', 0):.0f} s)"
     return [text] + [f"  warning        {w}" for w in info.get("warnings", [])]
 
