@@ -441,7 +441,9 @@ def plane_sweep_scene(scene: Scene, frames: Sequence[int] | None = None, config:
         sparse_index = {n: k for k, n in enumerate(sparse.frame_names)}
     up = scene_up(cams) if dc.sweep_up else None
     # the full rule first; the one for points fewer sources see fills only where the full rule found nothing
-    rules = (False, True) if dc.fewer_where_fewer_see else (False,)
+    # (with one source and one agreeing view asked, the second rule asks the same: not run)
+    relaxes = dc.fewer_where_fewer_see and (dc.best_k > 1 or dc.consistent_views > 1)
+    rules = (False, True) if relaxes else (False,)
     maps = [([], [], []) for _ in rules]  # per rule: depths, sigmas, supports
     used = []
     t0 = time.perf_counter()
