@@ -22,6 +22,7 @@ per-pixel sigma. The results go into the scene folder and are referenced from tr
   sparse/observations.npz    per observation: frame, pixel (u, v), point, depth, sigma
   mvs/depth/<name>.png       --dense: z-depth, uint16 in depth_unit_scale_factor units, 0 = none
   mvs/sigma/<name>.png       --dense: its standard deviation, same encoding
+  mvs/support/<name>.png     --dense: source views that confirmed each depth (uint8)
 
 Too little texture or baseline is a warning in the summary, never an error. Formats and measured accuracy:
 docs/scene-format.md, docs/sfm.md.
