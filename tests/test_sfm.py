@@ -220,6 +220,32 @@ def test_plane_sweep_gives_depth_where_only_one_source_view_sees_the_point(tmp_p
     assert np.all(n[got] == 1) and np.mean(n[two] >= 2) > 0.9 and np.all(n[d == 0] == 0)
 
 
+@pytest.mark.parametrize("best_k", [2, 3])
+def test_the_fewer_sources_rule_swept_beside_the_full_rule_equals_it_swept_alone(tmp_path, best_k):
+    # Swept together, the fewer-sources rule's winner is taken over from the full rule's wherever every plane's
+    # point is in at least best_k sources' images, and the two means come from one running sum; swept alone, it
+    # takes the winner of its whole cost volume. Same maps, on the walk whose ends only one source sees.
+    from lift3d.sfm.mvs import intrinsics, sweep_view, world_to_camera, _grey
+
+    c2w = [look_at(np.array([-0.9 + 0.5 * k, -1.2, 1.6]), np.array([-0.9 + 0.5 * k, 0.3, 0.0])) for k in range(4)]
+    textured_plane_scene(tmp_path / "walk", c2w=c2w)
+    scene = load_scene(tmp_path / "walk")
+    cams = scene.cameras
+    dc = SfmConfig().dense
+    dc.best_k = best_k
+    r, t = world_to_camera(cams)
+    ks = intrinsics(cams)
+    greys = [_grey(scene.image(i), (SIZE, SIZE)) for i in range(4)]
+    rel = [(r[n] @ r[0].T, t[n] - r[n] @ r[0].T @ t[0]) for n in (1, 2, 3)]
+    args = (greys[0], greys[1:], ks[0], list(ks[1:]), rel, 0.5, 6.0, dc, [np.array([0.0, 0, 1]), r[0] @ [0, 0, 1.0]])
+    full, together = sweep_view(*args, rules=(False, True))
+    (alone,) = sweep_view(*args, rules=(True,))
+    (full_alone,) = sweep_view(*args, rules=(False,))
+    assert (together[0] > 0).sum() > (full[0] > 0).sum() > 100  # the rule adds depth at the walk's end
+    for a, b in zip(together + full, alone + full_alone):
+        np.testing.assert_array_equal(a, b)
+
+
 def test_triangulation_with_distorted_cameras(tmp_path):
     depths = textured_plane_scene(tmp_path / "plane", k1=-0.3)
     scene = load_scene(tmp_path / "plane")

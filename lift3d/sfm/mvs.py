@@ -143,6 +143,8 @@ def _sweep_direction(ref, var_r, mu_r, sources, k_ref, k_src, rel, normal, qs, n
     best_zncc = [np.full((h, w), -np.inf, np.float32) for _ in rules]
     best_src = [np.zeros((n_src, h, w), np.float32) for _ in rules]
     best_covering = [np.zeros((h, w), np.int32) for _ in rules]
+    relaxes = k_best > 1 and any(rules)  # with one source asked both rules are the same mean
+    fewer_here = np.zeros((h, w), bool)  # pixels where some plane's point is in fewer than k_best sources' images
     # H(q) = A + q B (plane_homography is linear in q): two matrices per source instead of one per plane.
     hom_a = [plane_homography(k_ref, ks, r_rel, t_rel, normal, 0.0) for ks, (r_rel, t_rel) in zip(k_src, rel)]
     hom_b = [plane_homography(k_ref, ks, r_rel, t_rel, normal, 1.0) - a
@@ -175,20 +177,39 @@ def _sweep_direction(ref, var_r, mu_r, sources, k_ref, k_src, rel, normal, qs, n
                 hi_j = np.maximum(top[j], z)
                 z = np.minimum(top[j], z)
                 top[j] = hi_j
+        # the mean of the best k_best sources and, for the fewer-sources rule, of the best min(k_best, covering):
+        # sources that cannot see the point do not vote. One running sum gives both (the same sums, in the same
+        # order, as a mean over the top k).
+        total = top[0].copy()
+        relaxed = total.copy() if relaxes else None
+        for j in range(1, k_best):
+            if relaxes:
+                np.copyto(relaxed, total / np.float32(j), where=covering == j)
+            total += top[j]
+        total /= np.float32(k_best)
+        if relaxes:
+            np.copyto(relaxed, total, where=covering >= k_best)
+            fewer_here |= in_range & (covering < k_best)
         for r, fewer in enumerate(rules):
-            if fewer and k_best > 1:
-                # the mean of the best min(K, covering) sources: sources that cannot see the point do not vote
-                m = np.clip(covering, 1, k_best)
-                agg = np.take_along_axis(np.cumsum(top, axis=0), (m - 1)[None], axis=0)[0] / m
-            else:
-                agg = top.mean(0)
-            agg = np.where(in_range, agg, np.float32(-1.0))
+            agg = np.where(in_range, relaxed if fewer and relaxes else total, np.float32(-1.0))
             cost[r][p] = 1.0 - agg
             better = agg > best_zncc[r]
             np.copyto(best_zncc[r], agg, where=better)  # in place: this runs per plane and rule
             np.copyto(best_src[r], zs, where=better[None])
             np.copyto(best_covering[r], covering, where=better)
-    return [_winner(cost[r], qs, c_pix) + (best_src[r], best_covering[r]) for r in range(len(rules))]
+    out = []
+    for r, fewer in enumerate(rules):
+        if fewer and relaxes and out:
+            # the fewer-sources rule's cost differs from the full rule's only where some plane's point is in fewer
+            # than k_best sources' images: elsewhere the full rule's winner is its winner
+            c0, depth, margin, interior = (np.array(x) for x in out[0][:4])
+            sub = _winner(cost[r][:, fewer_here][:, None], qs, c_pix[fewer_here][None])
+            for full, part in zip((c0, depth, margin, interior), sub):
+                full[fewer_here] = part[0]
+            out.append((c0, depth, margin, interior, best_src[r], best_covering[r]))
+        else:
+            out.append(_winner(cost[r], qs, c_pix) + (best_src[r], best_covering[r]))
+    return out
 
 
 def _winner(cost: np.ndarray, qs: np.ndarray, c_pix: np.ndarray) -> tuple[np.ndarray, ...]:
