@@ -291,12 +291,13 @@ def sweep_view(ref: np.ndarray, sources: Sequence[np.ndarray], k_ref: np.ndarray
     if best is None:
         empty = (np.zeros((h, w), np.float32), np.zeros((h, w), np.float32), np.zeros((h, w), np.uint8))
         return [empty for _ in rules]
-    return [_accept(ref, var_r, k_ref, k_src, rel, config, *b) for b in best]
+    return [_accept(var_r, k_ref, k_src, rel, config, *b) for b in best]
 
 
-def _accept(ref, var_r, k_ref, k_src, rel, config, c0, depth, margin, interior, best_src, covering):
-    """The winners that pass the ZNCC, uniqueness and texture tests, with their sigma and support."""
-    h, w = ref.shape
+def _accept(var_r, k_ref, k_src, rel, config, c0, depth, margin, interior, best_src, covering):
+    """The winners that pass the ZNCC, uniqueness and texture tests (``var_r``: the reference's windowed grey-level
+    variance), with their sigma and support."""
+    h, w = var_r.shape
     zncc = 1.0 - c0
     ok = ((var_r >= config.min_texture**2) & interior & (zncc >= config.min_zncc) & (margin >= config.min_margin)
           & (depth > 0))
