@@ -139,11 +139,14 @@ def _sweep_direction(ref, var_r, mu_r, sources, k_ref, k_src, rel, normal, qs, n
     k_best = min(config.best_k, n_src)
     c_pix = (_pixel_rays(k_ref, h, w) @ normal).astype(np.float32)  # nᵀ ray per pixel: z = 1 / (q c)
     min_var = config.min_texture**2 * 0.25  # sources need some texture too (ZNCC of a flat patch is noise)
-    cost = [np.empty((len(qs), h, w), np.float32) for _ in rules]
-    best_zncc = [np.full((h, w), -np.inf, np.float32) for _ in rules]
-    best_src = [np.zeros((n_src, h, w), np.float32) for _ in rules]
-    best_covering = [np.zeros((h, w), np.int32) for _ in rules]
-    relaxes = k_best > 1 and any(rules)  # with one source asked both rules are the same mean
+    relaxes = k_best > 1 and any(rules)
+    # the distinct means to sweep: with one source asked the fewer-sources rule's mean is the full rule's, and one
+    # cost volume serves both (False = the full rule's mean, True = the fewer-sources rule's)
+    kinds = sorted({bool(fewer) and relaxes for fewer in rules})
+    cost = {kind: np.empty((len(qs), h, w), np.float32) for kind in kinds}
+    best_zncc = {kind: np.full((h, w), -np.inf, np.float32) for kind in kinds}
+    best_src = {kind: np.zeros((n_src, h, w), np.float32) for kind in kinds}
+    best_covering = {kind: np.zeros((h, w), np.int32) for kind in kinds}
     fewer_here = np.zeros((h, w), bool)  # pixels where some plane's point is in fewer than k_best sources' images
     # H(q) = A + q B (plane_homography is linear in q): two matrices per source instead of one per plane.
     hom_a = [plane_homography(k_ref, ks, r_rel, t_rel, normal, 0.0) for ks, (r_rel, t_rel) in zip(k_src, rel)]
@@ -190,26 +193,26 @@ def _sweep_direction(ref, var_r, mu_r, sources, k_ref, k_src, rel, normal, qs, n
         if relaxes:
             np.copyto(relaxed, total, where=covering >= k_best)
             fewer_here |= in_range & (covering < k_best)
-        for r, fewer in enumerate(rules):
-            agg = np.where(in_range, relaxed if fewer and relaxes else total, np.float32(-1.0))
-            cost[r][p] = 1.0 - agg
-            better = agg > best_zncc[r]
-            np.copyto(best_zncc[r], agg, where=better)  # in place: this runs per plane and rule
-            np.copyto(best_src[r], zs, where=better[None])
-            np.copyto(best_covering[r], covering, where=better)
-    out = []
-    for r, fewer in enumerate(rules):
-        if fewer and relaxes and out:
+        for kind in kinds:
+            agg = np.where(in_range, relaxed if kind else total, np.float32(-1.0))
+            cost[kind][p] = 1.0 - agg
+            better = agg > best_zncc[kind]
+            np.copyto(best_zncc[kind], agg, where=better)  # in place: this runs per plane and mean
+            np.copyto(best_src[kind], zs, where=better[None])
+            np.copyto(best_covering[kind], covering, where=better)
+    out = {}
+    for kind in kinds:  # the full rule's first
+        if kind and False in out:
             # the fewer-sources rule's cost differs from the full rule's only where some plane's point is in fewer
             # than k_best sources' images: elsewhere the full rule's winner is its winner
-            c0, depth, margin, interior = (np.array(x) for x in out[0][:4])
-            sub = _winner(cost[r][:, fewer_here][:, None], qs, c_pix[fewer_here][None])
+            c0, depth, margin, interior = (np.array(x) for x in out[False][:4])
+            sub = _winner(cost[kind][:, fewer_here][:, None], qs, c_pix[fewer_here][None])
             for full, part in zip((c0, depth, margin, interior), sub):
                 full[fewer_here] = part[0]
-            out.append((c0, depth, margin, interior, best_src[r], best_covering[r]))
+            out[kind] = (c0, depth, margin, interior, best_src[kind], best_covering[kind])
         else:
-            out.append(_winner(cost[r], qs, c_pix) + (best_src[r], best_covering[r]))
-    return out
+            out[kind] = _winner(cost[kind], qs, c_pix) + (best_src[kind], best_covering[kind])
+    return [out[bool(fewer) and relaxes] for fewer in rules]
 
 
 def _winner(cost: np.ndarray, qs: np.ndarray, c_pix: np.ndarray) -> tuple[np.ndarray, ...]:
@@ -506,14 +509,14 @@ def plane_sweep_scene(scene: Scene, frames: Sequence[int] | None = None, config:
     out_d, out_s, out_n = [], [], []
     for v in range(len(frames)):
         w, h = sizes[v]
-        maps = (depths[v], sigmas[v], supports[v])
+        view_maps = (depths[v], sigmas[v], supports[v])
         if cams.has_distortion:
-            maps = _redistort(maps, cams, v)
-        elif maps[0].shape != (h, w):
-            maps = tuple(cv2.resize(m, (w, h), interpolation=cv2.INTER_NEAREST) for m in maps)
-        out_d.append(maps[0].astype(np.float32))
-        out_s.append(maps[1].astype(np.float32))
-        out_n.append(maps[2].astype(np.uint8))
+            view_maps = _redistort(view_maps, cams, v)
+        elif view_maps[0].shape != (h, w):
+            view_maps = tuple(cv2.resize(m, (w, h), interpolation=cv2.INTER_NEAREST) for m in view_maps)
+        out_d.append(view_maps[0].astype(np.float32))
+        out_s.append(view_maps[1].astype(np.float32))
+        out_n.append(view_maps[2].astype(np.uint8))
     seconds["total"] = time.perf_counter() - t_start
     dense = DenseDepth(names, out_d, out_s, support=out_n)
     dense.info = {"source": "lift3d triangulate --dense", "seconds": {k: round(v, 3) for k, v in seconds.items()},
