@@ -9,7 +9,7 @@ from lift3d.data.scene import load_scene
 from lift3d.data.stereo import SparsePoints, write_sparse_points
 from lift3d.model.config import ImageDepthConfig
 from lift3d.data.cameras import Cameras
-from lift3d.sfm.planes import (add_walls, ceiling_height, ceiling_points, correct_walls, fit_planes, floor_boundary_points,
+from lift3d.sfm.planes import (add_walls, ceiling_height, ceiling_points, corner_cutters, correct_walls, fit_planes, floor_boundary_points,
                                floor_line, floor_line_walls, point_classes)
 from lift3d.synth import make_scene
 from lift3d.train.image_depth import image_depth_targets
@@ -548,6 +548,36 @@ def test_an_inner_wall_of_an_l_shaped_room_is_found_and_does_not_reach_across_th
     # The margin still fills a corner where two walls' points stop short of it.
     t, _ = planes.first_hit(np.array([[0.0, 0.0, 1.5]]), np.array([[1.0, 1.0, 0.0]]) / np.sqrt(2))
     assert t[0] == pytest.approx(3.0 * np.sqrt(2), abs=0.1)
+
+def test_a_plane_cutting_a_corner_through_its_walls_ends_is_dropped_and_no_wall_of_an_l_shaped_room_is():
+    # Seed 1's failure: a plane through the ends of two walls that meet in a corner, and a stray cluster
+    # between them the labels call wall, cut the corner off. The room's own walls, including the inner walls
+    # of the L whose corner points into the room, are kept.
+    rng = np.random.default_rng(4)
+    pts, cls, sight = _l_room(rng)
+    planes = fit_planes(pts, cls, [WALL, FLOOR], threshold=0.05, min_points=8, margin=1.0, up=UP, sightlines=sight)
+    eye = np.array([1.0, 0.5, 1.5])
+    assert not corner_cutters(planes, pts, cls, 0.05, UP, eye).any()
+    n = np.array([1.0, 1.0, 0.0]) / np.sqrt(2)  # x + y = 4.5: from (3, 1.5) to (1.5, 3), the corner (3, 3) behind
+    # textured patches of the two walls where the plane passes them, and the stray cluster half-way
+    heights = rng.uniform(0.2, 2.8, 8)
+    ends = np.r_[np.c_[np.full(8, 3.0), rng.uniform(1.48, 1.52, 8), heights],
+                 np.c_[rng.uniform(1.48, 1.52, 8), np.full(8, 3.0), heights]]
+    stray = np.c_[rng.uniform(2.2, 2.3, 12), np.zeros(12), rng.uniform(0.3, 0.9, 12)]
+    stray[:, 1] = 4.5 - stray[:, 0]
+    pts, cls = np.r_[pts, ends, stray], np.r_[cls, np.full(len(ends) + len(stray), WALL)]
+    cut = planes.with_plane(n, -4.5 / np.sqrt(2), np.r_[ends, stray], np.full(len(ends) + len(stray), WALL), 0.05)
+    assert len(cut) == len(planes) + 1
+    drop = corner_cutters(cut, pts, cls, 0.05, UP, eye)
+    assert drop.tolist() == [False] * len(planes) + [True]
+    # A ray into the corner meets the cutting plane; without it, the wall x = 3.
+    o, d = np.array([[1.0, 1.0, 1.5]]), np.array([[1.0, 0.6, 0.0]]) / np.hypot(1.0, 0.6)
+    assert cut.first_hit(o, d)[1][0] == len(planes)
+    t, _ = cut.subset(~drop).first_hit(o, d)
+    assert (o + t[:, None] * d)[0, 0] == pytest.approx(3.0, abs=0.06)
+    # The same cluster in front of a straight wall makes no corner: nothing is dropped.
+    assert not corner_cutters(planes, pts, cls, 0.05, UP, eye).any()
+
 
 def test_a_margin_the_views_see_through_does_not_stop_a_ray():
     # The L-shaped room without the points of its inner wall x = -1: nothing separates the other inner wall

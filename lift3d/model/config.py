@@ -114,6 +114,9 @@ class ImageDepthConfig:
     """``planes``: also fit walls to the points where the 2D labels put a wall on the floor (the ray through
     that boundary meets the floor plane at the wall's foot; the wall rises vertically from there), which needs no
     texture (:func:`lift3d.sfm.planes.floor_boundary_points`)."""
+    plane_corner_cutters: bool = True
+    """``planes``: drop a wall that cuts across the corner of two other walls and is made of their ends' points
+    (a stray cluster between them can make it the largest plane; :func:`lift3d.sfm.planes.corner_cutters`)."""
     plane_floor_line_walls: bool = True
     """``planes``: walls that no plane has yet, found where the wall-on-floor boundaries of many views agree
     to within ``plane_line_pixels`` rows, in the directions of the walls found and at right angles to them (a

@@ -280,7 +280,8 @@ def _plane_rows(scene: Scene, sparse: SparsePoints, dense: DenseDepth, frames: n
     # here, not at module level: keeps `import lift3d.train` cheap (lift3d.sfm loads OpenCV)
     from lift3d.sfm.mvs import scene_up
     from lift3d.sfm.planes import enclosed_segments, fit_planes, floor_boundary_points, label_support
-    from lift3d.sfm.planes import ceiling_points, point_classes, square_walls, wall_directions, wall_reach
+    from lift3d.sfm.planes import ceiling_points, corner_cutters, point_classes, square_walls, wall_directions
+    from lift3d.sfm.planes import wall_reach
     from lift3d.sfm.standing import standing_faces, stereo_agreement
 
     empty = (np.zeros(0, np.int64),) + (np.zeros(0, np.float32),) * 4 + (np.zeros(0, bool),)
@@ -339,6 +340,13 @@ def _plane_rows(scene: Scene, sparse: SparsePoints, dense: DenseDepth, frames: n
                 thinned, thinned_cls = thin(np.r_[thinned, foot], np.r_[thinned_cls, foot_cls])
                 cams, seen_xyz = np.r_[cams, foot_cam], np.r_[seen_xyz, foot]
                 planes = fit(thinned, thinned_cls, cams, seen_xyz)
+    if cfg.plane_corner_cutters and len(planes):
+        # a plane across a corner, through the ends of its two walls, hides the corner and stops their reach
+        floor = _floor_plane(planes, up)
+        cut = corner_cutters(planes, thinned, thinned_cls, cfg.plane_threshold * diag,
+                             floor[1] if floor is not None else up, scene.cameras.centers[frames].mean(0))
+        info["corner_cutters_dropped"] = int(cut.sum())
+        planes = planes.subset(~cut)
     if cfg.plane_floor_line_walls and len(planes):
         # far plain walls: their near feet were too few, but many views' boundaries agree in pixels
         floor = _floor_plane(planes, up)
