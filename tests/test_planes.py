@@ -575,7 +575,7 @@ def test_a_plane_cutting_a_corner_through_its_walls_ends_is_dropped_and_no_wall_
     assert cut.first_hit(o, d)[1][0] == len(planes)
     t, _ = cut.subset(~drop).first_hit(o, d)
     assert (o + t[:, None] * d)[0, 0] == pytest.approx(3.0, abs=0.06)
-    # The same cluster in front of a straight wall makes no corner: nothing is dropped.
+    # The extra points do not make any of the room's own walls a corner cutter.
     assert not corner_cutters(planes, pts, cls, 0.05, UP, eye).any()
 
 
