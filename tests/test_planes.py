@@ -579,6 +579,21 @@ def test_a_plane_cutting_a_corner_through_its_walls_ends_is_dropped_and_no_wall_
     assert not corner_cutters(planes, pts, cls, 0.05, UP, eye).any()
 
 
+def test_a_cut_corner_with_its_own_points_along_it_is_kept():
+    # A real chamfer: a wall across the corner (3, 3) with points all along it, not only where it meets the two
+    # walls. Few of its points lie near them, so it is no corner cutter.
+    rng = np.random.default_rng(5)
+    pts, cls, sight = _l_room(rng)
+    s = rng.uniform(0.0, 1.0, 60)[:, None]
+    chamfer = np.array([3.0, 1.5, 0.0]) + s * np.array([-1.5, 1.5, 0.0]) + np.c_[0 * s, 0 * s, rng.uniform(0.1, 2.9, 60)]
+    pts, cls = np.r_[pts, chamfer], np.r_[cls, np.full(len(chamfer), WALL)]
+    planes = fit_planes(pts, cls, [WALL, FLOOR], threshold=0.05, min_points=8, margin=1.0, up=UP)
+    n = np.array([1.0, 1.0, 0.0]) / np.sqrt(2)
+    diagonal = np.abs(np.abs(planes.normal @ n) - 1.0) < 0.01
+    assert diagonal.sum() == 1
+    assert not corner_cutters(planes, pts, cls, 0.05, UP, np.array([1.0, 0.5, 1.5])).any()
+
+
 def test_a_margin_the_views_see_through_does_not_stop_a_ray():
     # The L-shaped room without the points of its inner wall x = -1: nothing separates the other inner wall
     # (y = -1, x from -3 to -1) from the open wing x > -1, and its 1 m margin reached across it. A ray along -y
