@@ -549,6 +549,7 @@ def test_an_inner_wall_of_an_l_shaped_room_is_found_and_does_not_reach_across_th
     t, _ = planes.first_hit(np.array([[0.0, 0.0, 1.5]]), np.array([[1.0, 1.0, 0.0]]) / np.sqrt(2))
     assert t[0] == pytest.approx(3.0 * np.sqrt(2), abs=0.1)
 
+
 def test_a_plane_cutting_a_corner_through_its_walls_ends_is_dropped_and_no_wall_of_an_l_shaped_room_is():
     # Seed 1's failure: a plane through the ends of two walls that meet in a corner, and a stray cluster
     # between them the labels call wall, cut the corner off. The room's own walls, including the inner walls
