@@ -105,6 +105,10 @@ def add_parser(subparsers, verb: str) -> argparse.ArgumentParser:
                    help="keep the field's stuff labels where two stuff surfaces meet (default: a stuff point that "
                         "faces the way a neighbouring stuff class faces, and not the way its own class does, takes "
                         "that class; see docs/export.md)")
+    g.add_argument("--no-complete-corners", dest="complete_corners", action="store_false",
+                   help="keep the isosurface's rounded edges where walls, floor and ceiling meet (default: in a "
+                        "bounded scene, stuff points near two stuff planes that meet are moved onto both, each "
+                        "with its plane's class; see docs/export.md)")
     g.add_argument("--no-view-vote", dest="view_vote", action="store_false",
                    help="keep the field's labels everywhere (default: a point whose training views agree, in their "
                         "2D labels, that it is a stuff class takes that class: a chair's label does not spread onto "
@@ -178,6 +182,7 @@ def run(args: argparse.Namespace) -> int:
         remove_outliers=args.remove_outliers, std_ratio=args.std_ratio, obb=obb, min_points=args.min_points,
         merge_fragments=args.merge_fragments, crumb_points=args.crumb_points, orient_stuff=args.orient_stuff,
         view_vote=args.view_vote, box_fill=args.box_fill, thing_fill=args.thing_fill,
+        complete_corners=args.complete_corners,
         **cleanup, device=args.device,
     )
     print(format_summary(summary))

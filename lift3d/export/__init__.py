@@ -99,7 +99,8 @@ def export_run(run: str | Path, output_dir: str | Path | None = None, *, pointcl
     **point_options
         Passed to :func:`~lift3d.export.pointcloud.extract_labelled_points` (``source``, ``num_points``,
         ``frame``, ``density_threshold``, ``refine_surface``, ``min_confidence``, ``voxel_size``,
-        ``remove_outliers``, ``std_ratio``, ``obb``, ``min_points``, ``box_fill``, ``thing_fill``, ``device``).
+        ``remove_outliers``, ``std_ratio``, ``obb``, ``min_points``, ``box_fill``, ``thing_fill``,
+        ``complete_corners``, ``device``).
 
     Returns
     -------

@@ -186,6 +186,10 @@ class StuffPlanes:
         """``[P] bool``: the plane is within ``max_tilt_deg`` of vertical (a wall) for the direction ``up``."""
         return np.abs(self.normal.reshape(-1, 3) @ up) < np.sin(np.radians(max_tilt_deg))
 
+    def beyond_extent(self, k: int, x: np.ndarray) -> np.ndarray:
+        """``[N]`` how far points ``x`` (``[N, 3]``, on plane ``k``) lie beyond its inliers' hull (≤ 0 inside)."""
+        return _beyond_hull(np.asarray(x, np.float64), self.origin[k], self.basis[k], self.hull[k])[1]
+
     def holds(self, plane: np.ndarray, class_id: np.ndarray) -> np.ndarray:
         """``[R] bool``: plane ``plane[r]`` (``-1`` = none) holds class ``class_id[r]``."""
         out = np.zeros(len(plane), bool)
