@@ -195,9 +195,9 @@ def orient_stuff_labels(xyz: np.ndarray, semantic: np.ndarray, stuff_ids, radius
 
 #: Stuff points the corner planes are fitted to (a larger export is subsampled, with a fixed seed).
 CORNER_FIT_POINTS = 30_000
-#: A plane takes part in a corner when it holds at least this share of those points: on an images-only tuning
-#: room, planes under 1 % were fog in front of a wall (a fifth to two fifths of their points near a GT surface),
-#: and the smallest real wall held 5 %.
+#: A plane takes part in a corner when it holds at least this share of those points (or half of one of its
+#: classes' points): on an images-only tuning room, planes under 1 % were fog in front of a wall (a fifth to two
+#: fifths of their points near a GT surface), and the smallest real wall held 5 %.
 CORNER_MIN_PLANE_SHARE = 0.02
 #: Two planes make a corner when the angle between them is at least this (degrees).
 CORNER_MIN_ANGLE = 60.0
@@ -216,13 +216,16 @@ def complete_stuff_corners(xyz: np.ndarray, semantic: np.ndarray, stuff_ids, rad
     sharp edges, so the cloud can say so:
 
     1. planes are fitted to the stuff points (:func:`lift3d.sfm.planes.fit_planes`, inliers within
-       ``threshold``, horizontal or vertical when ``up`` is given); planes holding less than
-       ``min_plane_share`` of the points take no part;
+       ``threshold``, horizontal or vertical when ``up`` is given); a plane takes part when it holds
+       ``min_plane_share`` of the points, or half of the points of one of its classes (a ceiling the views
+       barely see is a small plane, but all there is of the ceiling; a sheet of fog in front of a wall holds a
+       sliver of the walls);
     2. a stuff point within ``radius`` of two of them that meet at ``min_angle`` or more is a corner point;
     3. it is replaced by its projections onto every such plane within ``radius`` of it, where the projection
        lies within ``radius`` of the plane's extent (its inliers' hull). A projection keeps the point's class
-       when the plane holds that class (a window along a ceiling stays window), and otherwise takes the class
-       most of the plane's points have.
+       when that class belongs on the plane: the plane holds it and most of the class's points lie on planes
+       facing alike (level or upright, given ``up``: a window along a ceiling stays window on the wall; a wall
+       point on the ceiling is ceiling). Otherwise it takes the plane's own class, the one of those with most points on it.
 
     Each corner point becomes two or three points, one on each surface: the strip of the rounded edge turns
     into the two surfaces running up to their common edge, each with its own class. Things are never moved.
@@ -302,7 +305,16 @@ def complete_stuff_corners(xyz: np.ndarray, semantic: np.ndarray, stuff_ids, rad
         return (*none, stats)
     planes = fit_planes(xyz[fit], semantic[fit], stuff_ids, threshold=threshold,
                         min_points=max(50, len(fit) // 200), up=up, seed=seed)
-    large = np.flatnonzero(planes.inliers >= min_plane_share * len(fit))
+    fit_cls = semantic[fit]
+    fit_dist = np.abs(xyz[fit] @ planes.normal.T + planes.offset)  # [F, P]
+
+    def most_of_a_class(k: int) -> bool:
+        # the ceiling of a room the views barely see: a small plane, but all there is of its class
+        return any((fit_dist[fit_cls == c, k] < threshold).mean() >= 0.5 for c in planes.classes[k]
+                   if (fit_cls == c).any())
+
+    large = np.flatnonzero([planes.inliers[k] >= min_plane_share * len(fit) or most_of_a_class(k)
+                            for k in range(len(planes))])
     stats.update(planes=len(planes), corner_planes=int(len(large)))
     if len(large) < 2:
         return (*none, stats)
@@ -320,13 +332,28 @@ def complete_stuff_corners(xyz: np.ndarray, semantic: np.ndarray, stuff_ids, rad
     rows, cols = np.nonzero(near & corner[:, None])
     if not len(rows):
         return (*none, stats)
-    # the class most of each plane's points (within the inlier distance) have
+    # Which classes belong on a plane: those it holds of which most points lie on planes facing its way. The fit
+    # counts the walls' top rows among a small ceiling's inliers (a reported room: 7 700 wall points at the
+    # ceiling's height against 2 500 ceiling points), but the walls' points lie on upright planes; a rug's lie on
+    # level ones, a window's on upright ones. The plane's own class is the one of those with most points on it.
+    on = fit_dist[:, large] < threshold  # [F, L]
+    if up is not None:  # level planes (floors, ceilings) and upright ones (walls, whichever way they face)
+        level = np.abs(normal @ (np.asarray(up, np.float64) / np.linalg.norm(up))) > np.cos(np.radians(45.0))
+        facing = level[:, None] == level[None, :]  # [L, L] planes facing alike
+    else:
+        facing = np.abs(normal @ normal.T) > np.cos(np.radians(min_angle))
+    on_facing = (on.astype(np.int64) @ facing.astype(np.int64)) > 0  # [F, L]
+    belongs = np.zeros((len(large), int(max(semantic.max(), fit_cls.max())) + 1), bool)
     main = np.empty(len(large), semantic.dtype)
-    for j in range(len(large)):
-        ids, counts = np.unique(cls[np.abs(signed[:, j]) < threshold], return_counts=True)
-        main[j] = ids[counts.argmax()] if len(ids) else cls[rows[cols == j]][0] if (cols == j).any() else 0
+    for j, k in enumerate(large):
+        ids = np.array(sorted(planes.classes[k]))
+        share = np.array([on_facing[fit_cls == c, j].mean() if (fit_cls == c).any() else 0.0 for c in ids])
+        count = np.array([(on[:, j] & (fit_cls == c)).sum() for c in ids])
+        own = ids[share >= 0.5]
+        belongs[j, own] = True
+        main[j] = own[np.argmax(count[share >= 0.5])] if len(own) else ids[np.argmax(share)]
     new_xyz = pts[rows] - signed[rows, cols, None] * normal[cols]
-    held = planes.holds(large[cols], cls[rows])
+    held = belongs[cols, cls[rows]]
     new_sem = np.where(held, cls[rows], main[cols]).astype(semantic.dtype)
     keep[stuff[corner]] = False
     stats.update(corner_points=int(corner.sum()), added=int(len(rows)), relabelled=int((~held).sum()))
