@@ -164,3 +164,28 @@ def test_a_ceiling_the_views_barely_see_still_takes_its_edge(room):
     new_xyz, new_sem, _, _, stats = _completed(xyz, sem, max_points=len(xyz))  # the fit above, unsubsampled
     after, _ = _edge_scores(new_xyz, new_sem, gt, gt_cls)
     assert stats["corner_planes"] == 6 and before < 0.6 and after > 0.85, (stats, before, after)
+
+
+def test_projections_respect_the_crop_box_and_the_voxel_size(tiny_run, monkeypatch):
+    """The step adds points after the crop and the voxel grid: its projections must honour both. A stand-in
+    step projects every stuff point twice, once far outside the box and once beside itself."""
+    import lift3d.export.pointcloud as pc
+    from lift3d.model.run import load_run
+
+    def stand_in(xyz, semantic, stuff_ids, radius, threshold, **kw):
+        idx = np.flatnonzero(np.isin(semantic, list(stuff_ids)))
+        new = np.r_[xyz[idx] + 100.0, xyz[idx] + 1e-4]
+        return (np.ones(len(xyz), bool), np.r_[idx, idx], new, np.r_[semantic[idx], semantic[idx]],
+                {"corner_points": len(idx)})
+
+    monkeypatch.setattr(pc, "complete_stuff_corners", stand_in)
+    loaded = load_run(tiny_run, device="cpu")
+    scene = loaded.scene()
+    lo, hi = np.asarray(loaded.norm.aabb_world, np.float64)
+    box = {"center": ((lo + hi) / 2).tolist(), "R": np.eye(3).tolist(), "scale": (hi - lo).tolist()}
+    voxel = 0.05
+    pts = pc.extract_labelled_points(loaded, scene, num_points=3000, obb=box, voxel_size=voxel, view_vote=False)
+    assert pts.thresholds["stuff_corners"]["corner_points"] > 0
+    assert pc.OrientedBox.coerce(box).contains(pts.xyz).all()
+    keys = np.floor(pts.xyz / voxel).astype(np.int64)
+    assert len(np.unique(keys, axis=0)) == len(keys)
