@@ -227,7 +227,8 @@ def complete_stuff_corners(xyz: np.ndarray, semantic: np.ndarray, stuff_ids, rad
        lies within ``radius`` of the plane's extent (its inliers' hull). A projection keeps the point's class
        when that class belongs on the plane: the plane holds it and most of the class's points lie on planes
        facing alike (level or upright, given ``up``: a window along a ceiling stays window on the wall; a wall
-       point on the ceiling is ceiling). Otherwise it takes the plane's own class, the one of those with most points on it.
+       point on the ceiling is ceiling). Otherwise it takes the plane's own class, the one of those with most
+       points on it.
 
     Each corner point becomes two or three points, one on each surface: the strip of the rounded edge turns
     into the two surfaces running up to their common edge, each with its own class. Things are never moved.
