@@ -408,7 +408,9 @@ def test_eval_writes_metrics_json_with_every_key(trained, evaluated):
     assert set(m["depth"]) >= {"abs_rel", "rmse", "mae", "n_valid"} and m["depth"]["n_valid"] > 0
     p3 = m["points3d"]
     assert set(p3) >= {"miou", "pq", "chamfer", "fscore", "accuracy", "completeness", "tau", "source"}
-    assert p3["n_gt"] == len(scene.gt_points()["xyz"]) and 0 < p3["n_pred"] <= 20000
+    # 20 000 points are drawn; the filters only remove points, but the corner step (docs/export.md, step 8) adds
+    # one point per extra plane for each point at a room's edges, about a fifth more in a room
+    assert p3["n_gt"] == len(scene.gt_points()["xyz"]) and 0 < p3["n_pred"] <= 1.25 * 20000
     gt = scene.gt_points()
     objects = {(int(c), int(i)) for c, i in zip(gt["semantic"], gt["instance"]) if i and c in scene.thing_ids}
     assert p3["n_gt_objects"] == len(objects) and p3["n_gt_objects"] >= p3["n_instances"]

@@ -49,6 +49,8 @@ from typing import Any
 import numpy as np
 from scipy.spatial import cKDTree
 
+from lift3d.sfm.planes import fit_planes
+
 #: Points the orientations are measured on: larger exports are subsampled to this many stuff points (the
 #: density the rule was chosen at), and every other point follows its nearest measured neighbour.
 ORIENTATION_POINTS = 150_000
@@ -290,8 +292,6 @@ def complete_stuff_corners(xyz: np.ndarray, semantic: np.ndarray, stuff_ids, rad
     >>> float(new_xyz[on_floor, 0].min()) < 0.01, float(new_xyz[~on_floor, 2].min()) < 0.01   # they meet
     (True, True)
     """
-    from lift3d.sfm.planes import fit_planes  # the plane fit of the training's image depth, reused
-
     xyz = np.asarray(xyz, np.float64)
     semantic = np.asarray(semantic)
     settings = {"radius": float(radius), "threshold": float(threshold), "min_plane_share": float(min_plane_share),
