@@ -76,6 +76,7 @@ from lift3d.export.mesh import (
 from lift3d.export.tsdf import fuse_rendered_depth, sample_surface
 from lift3d.field.encodings import uncontract
 from lift3d.model.run import LoadedRun, load_run
+from lift3d.sfm.mvs import scene_up
 from lift3d.utils.device import resolve_device
 from lift3d.utils.memory import peak_rss_mb
 
@@ -382,12 +383,11 @@ def extract_labelled_points(loaded: LoadedRun, scene: Scene, *, source: str = "a
         xyz, rgb, semantic, channel, confidence, filled, thresholds["stuff_corners"] = _complete_corners(
             loaded, scene, frame, link, xyz, rgb, semantic, channel, confidence, filled)
         # The projections honour the crop box and the voxel size: none outside the box, one point per voxel.
-        keep = np.ones(len(xyz), bool)
-        if obb is not None:
-            keep &= OrientedBox.coerce(obb).contains(xyz)
+        keep = box.contains(xyz) if obb is not None else np.ones(len(xyz), bool)
         if voxel_size > 0:
-            first = np.unique(np.floor(xyz / voxel_size).astype(np.int64), axis=0, return_index=True)[1]
-            keep &= np.isin(np.arange(len(xyz)), first)
+            first = np.zeros(len(xyz), bool)
+            first[np.unique(np.floor(xyz / voxel_size).astype(np.int64), axis=0, return_index=True)[1]] = True
+            keep &= first
         if not keep.all():
             xyz, rgb, semantic, channel, confidence, filled = (a[keep] for a in (xyz, rgb, semantic, channel,
                                                                                   confidence, filled))
@@ -441,8 +441,7 @@ def _complete_corners(loaded: LoadedRun, scene: Scene, frame: str, link: float, 
     are replaced by their projections, which carry their point's colour, instance channel and confidence."""
     lo, hi = np.asarray(loaded.norm.aabb_world, np.float64)
     diag = float(np.linalg.norm(hi - lo)) * (float(loaded.norm.scale) if frame == "normalized" else 1.0)
-    up = np.asarray(scene.cameras.c2w, np.float64)[np.asarray(train_frames(scene)), :3, 1].mean(0)  # OpenGL up
-    up = up / np.linalg.norm(up) if np.linalg.norm(up) > 1e-9 else None
+    up = scene_up(scene.cameras[np.asarray(train_frames(scene))])  # as the training's plane fit
     # Two link radii: the width over which the isosurface rounds an edge, as orient_stuff_labels' radius.
     keep, source, new_xyz, new_semantic, info = complete_stuff_corners(
         xyz, semantic, scene.stuff_ids, radius=2.0 * link, threshold=CORNER_PLANE_THRESHOLD * diag, up=up)
