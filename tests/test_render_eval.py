@@ -685,3 +685,27 @@ def test_eval_without_a_usable_export_scores_the_heads_ids(trained, monkeypatch)
     # With the 3D block asked for, the export's error is the eval's error (as before).
     with pytest.raises(InputError, match="no surface"):
         evaluate_run(trained["run"], progress=False, write=False, timing_repeats=0)
+
+
+def test_eval_without_3d_gt_scores_the_export_against_the_depth_maps(trained, tmp_path):
+    from lift3d.eval.frame_metrics import depth_gt_points
+
+    scene_copy = tmp_path / "no3d"
+    shutil.copytree(trained["scene"], scene_copy)
+    (scene_copy / "gt" / "points.ply").unlink()
+    m = evaluate_run(trained["run"], data=scene_copy, progress=False, write=False, timing_repeats=0,
+                     num_points=20000)
+    assert m["points3d"] is None
+    g = m["geometry_from_depth"]
+    assert g["reference"] == "gt_depth" and g["frames"] == m["frames"] and 0.0 <= g["fscore"] <= 1.0
+    scene = load_scene(scene_copy)
+    frames = [int(i) for i in scene.split("test")]
+    gt = depth_gt_points(scene, frames)
+    assert g["n_gt"] == len(gt) and g["tau"] == pytest.approx(0.01 * np.linalg.norm(np.ptp(gt, axis=0)))
+    # the depth maps scored against themselves: every point within tau both ways
+    from lift3d.eval.points3d import geometry3d
+    assert geometry3d(gt, gt, g["tau"])["fscore"] == 1.0
+    d = m["depth"]
+    assert 0.0 <= d["share_over_0.1"] <= 1.0 and d["mae_of_diagonal"] == pytest.approx(d["mae"] / d["diagonal"])
+    table = format_eval_table(json_safe(m))
+    assert "3D geometry" in table and "% of the diagonal" in table

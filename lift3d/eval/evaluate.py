@@ -33,9 +33,9 @@ import torch
 from lift3d import __version__
 from lift3d.data.scene import Scene
 from lift3d.errors import InputError
-from lift3d.eval.frame_metrics import FRAME_METRICS, depth_reference
+from lift3d.eval.frame_metrics import FRAME_METRICS, depth_gt_points, depth_reference
 from lift3d.eval.metrics import miou, pq_scene
-from lift3d.eval.points3d import points3d
+from lift3d.eval.points3d import geometry3d, points3d
 from lift3d.export.instances import INSTANCE_SOURCES, check_instance_source, frame_instance_ids
 from lift3d.export.pointcloud import SOURCES, extract_labelled_points
 from lift3d.model.run import LoadedRun, load_run
@@ -450,6 +450,22 @@ def points3d_block(loaded: LoadedRun, scene: Scene, num_points: int = 200_000, p
     return block
 
 
+def geometry_from_depth_block(points, scene: Scene, frames: Sequence[int]) -> dict:
+    """Geometry of the run's exported points against the scored frames' depth maps back-projected (a real
+    capture's depth kept for evaluation, ``lift3d convert --depth-as-gt``): accuracy, completeness, chamfer,
+    precision, recall and F-score at ``tau`` = 1 % of the GT points' bounding-box diagonal
+    (:func:`lift3d.eval.points3d.geometry3d`); no labels (depth carries none)."""
+    gt = depth_gt_points(scene, frames)
+    if not len(gt):
+        raise InputError(scene.root / "transforms.json", "the scored frames' depth maps hold no depth")
+    tau = 0.01 * float(np.linalg.norm(gt.max(0) - gt.min(0)))
+    block = geometry3d(np.asarray(points.xyz, np.float64), gt, tau)
+    block.pop("_gt_to_pred")
+    block.update(reference=depth_reference(scene, frames), frames=len(frames),
+                 source=f"export.{points.stats.get('source', DEFAULT_SOURCE)}")
+    return block
+
+
 # --------------------------------------------------------------------------------------- speed
 def time_render(loaded: LoadedRun, n_rays: int = 2048, repeats: int = 10, *, warmup: int = 2, scene: Scene | None = None,
                 frame: int | None = None) -> dict:
@@ -644,12 +660,16 @@ def evaluate_run(
     things = [c for c in scene.thing_ids if c in set(loaded.labels.thing_ids)] if loaded.model.has_instances else []
     points = None
     want_points3d = with_points3d and scene.gt_points_path is not None
+    # Without 3D GT, the scored frames' depth maps (kept for evaluation, or the input's) say where the
+    # surfaces are: the export's geometry is scored against them.
+    want_depth_geometry = (with_points3d and scene.gt_points_path is None
+                           and depth_reference(scene, frames) is not None)
     export_failed = None
-    if want_points3d or things:  # (both instance sources are scored: the export's cloud is needed for either)
+    if want_points3d or want_depth_geometry or things:  # (both instance sources are scored: the export's cloud is needed for either)
         try:
             points = extract_labelled_points(loaded, scene, source=points_source, num_points=num_points)
         except InputError as exc:  # e.g. a field with no surface yet: the 3D block cannot do without it
-            if want_points3d:
+            if want_points3d or want_depth_geometry:
                 raise
             export_failed = str(exc)
     field_rendered = rendered
@@ -695,6 +715,10 @@ def evaluate_run(
     if want_points3d:
         metrics["points3d"] = points3d_block(loaded, scene, num_points=num_points, progress=progress,
                                              source=points_source, points=points)
+    elif want_depth_geometry:
+        metrics["geometry_from_depth"] = geometry_from_depth_block(points, scene, frames)
+        metrics["notes"].append(f"no gt/points.ply: 3D geometry only, against the {split} frames' "
+                                f"{depth_reference(scene, frames)} maps back-projected")
     elif scene.gt_points_path is None:
         metrics["notes"].append("no gt/points.ply: no 3D metrics")
 

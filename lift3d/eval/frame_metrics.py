@@ -77,22 +77,51 @@ def depth_reference(scene: Scene, frames: Sequence[int]) -> str | None:
     return None
 
 
+#: Most GT points :func:`lift3d.eval.evaluate.geometry_from_depth_block` back-projects (every pixel of a few small frames; every
+#: k-th of many large ones).
+DEPTH_GT_POINTS = 500_000
+
+
+def depth_gt_points(scene: Scene, frames: Sequence[int], max_points: int = DEPTH_GT_POINTS) -> np.ndarray:
+    """``[N, 3]`` world points of the ``frames``' depth maps (``gt_depth`` when every frame has one, else the
+    input depth; 0 = no depth), every pixel, or an even pixel stride keeping at most ``max_points``."""
+    reference = depth_reference(scene, frames)
+    if reference is None:
+        raise ValueError("depth_gt_points: not every frame has a depth map")
+    pixels = sum(int(scene.cameras.width[i]) * int(scene.cameras.height[i]) for i in frames)
+    stride = max(1, int(np.ceil(np.sqrt(pixels / max_points))))
+    out = []
+    for i in frames:
+        d = scene.gt_depth(int(i)) if reference == "gt_depth" else scene.depth(int(i))
+        vv, uu = np.mgrid[stride // 2:d.shape[0]:stride, stride // 2:d.shape[1]:stride]
+        z = d[vv, uu]
+        ok = np.isfinite(z) & (z > 0)
+        out.append(scene.cameras.unproject(int(i), uu[ok], vv[ok], z[ok]))
+    return np.concatenate(out) if out else np.zeros((0, 3))
+
+
 def _describe_depth(m: dict, fmt: Callable[..., str]) -> str:
     d = m.get("depth")
     if not d:
         return "depth: no GT depth"
     return (f"depth abs-rel {fmt(d.get('abs_rel'))}, RMSE {fmt(d.get('rmse'))}, MAE {fmt(d.get('mae'))} "
-            f"({d.get('n_valid')} px{', vs exact GT depth' if d.get('reference') == 'gt_depth' else ''})")
+            f"({fmt(100 * d['mae_of_diagonal'] if d.get('mae_of_diagonal') is not None else None, 2)} % of the "
+            f"diagonal), off > 0.1: {fmt(d.get('share_over_0.1'))} ({d.get('n_valid')} px{', vs exact GT depth' if d.get('reference') == 'gt_depth' else ''})")
 
 
 @frame_metric("depth", describe=_describe_depth)
 def _depth(scene: Scene, frames: Sequence[int], rendered: RenderedSplit) -> dict[str, Any]:
-    """``depth``: ``abs_rel rmse mae n_valid`` over all valid pixels of all frames and the ``reference`` they
-    were scored against (:func:`depth_reference`); None without depth to score against."""
+    """``depth``: ``abs_rel rmse mae share_over_0.1 n_valid`` over all valid pixels of all frames, the
+    ``reference`` they were scored against (:func:`depth_reference`) and ``mae_of_diagonal`` (MAE over the
+    diagonal of the reference depth back-projected: comparable across scene sizes); None without depth."""
     ref = depth_reference(scene, frames)
     if ref is None:
         return {"depth": None}
     read = scene.gt_depth if ref == "gt_depth" else scene.depth
     gd = np.concatenate([read(int(i)).ravel() for i in frames])
     pd = np.concatenate([np.asarray(d, np.float32).ravel() for d in rendered.depth])
-    return {"depth": {**depth_error(pd, gd), "reference": ref}}
+    err = depth_error(pd, gd)
+    gt = depth_gt_points(scene, frames, max_points=100_000)
+    diagonal = float(np.linalg.norm(gt.max(0) - gt.min(0))) if len(gt) else float("nan")
+    return {"depth": {**err, "reference": ref, "diagonal": diagonal,
+                      "mae_of_diagonal": err["mae"] / diagonal if diagonal > 0 else float("nan")}}

@@ -594,14 +594,15 @@ def depth_error(pred_depth, gt_depth, valid=None) -> dict:
     -------
     dict
         ``abs_rel`` = mean(|p − g| / g), ``rmse`` = sqrt(mean((p − g)²)),
-        ``mae`` = mean(|p − g|), ``n_valid``.  With no valid pixel the three
-        errors are NaN.  A non-finite prediction on a valid pixel propagates.
+        ``mae`` = mean(|p − g|), ``share_over_0.1`` = share of pixels off by more than 0.1 (10 cm in a metric
+        scene), ``n_valid``.  With no valid pixel the errors are NaN.  A non-finite prediction on a valid
+        pixel propagates.
 
     Examples
     --------
     >>> r = depth_error([1.0, 2.5, 7.0], [1.0, 2.0, 0.0])
-    >>> r["abs_rel"], r["mae"], r["n_valid"]
-    (0.125, 0.25, 2)
+    >>> r["abs_rel"], r["mae"], r["share_over_0.1"], r["n_valid"]
+    (0.125, 0.25, 0.5, 2)
     """
     p = np.asarray(pred_depth, dtype=np.float64)
     g = np.asarray(gt_depth, dtype=np.float64)
@@ -616,12 +617,13 @@ def depth_error(pred_depth, gt_depth, valid=None) -> dict:
     n = int(np.count_nonzero(m))
     if n == 0:
         nan = float("nan")
-        return {"abs_rel": nan, "rmse": nan, "mae": nan, "n_valid": 0}
+        return {"abs_rel": nan, "rmse": nan, "mae": nan, "share_over_0.1": nan, "n_valid": 0}
     d = p[m] - g[m]
     return {
         "abs_rel": float(np.mean(np.abs(d) / g[m])),
         "rmse": float(np.sqrt(np.mean(d * d))),
         "mae": float(np.mean(np.abs(d))),
+        "share_over_0.1": float(np.mean(np.abs(d) > 0.1)),
         "n_valid": n,
     }
 

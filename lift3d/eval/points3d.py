@@ -156,28 +156,16 @@ def points3d(
     if not (tau >= 0 and np.isfinite(tau)):
         raise ValueError(f"points3d: tau must be a finite non-negative distance, got {tau}")
 
-    pred_tree = cKDTree(px) if n else None
-    d_gt, nn = nearest_distances(gx, pred_tree)  # GT -> prediction
-    d_pred, _ = nearest_distances(px, cKDTree(gx)) if n else (np.zeros(0), None)  # prediction -> GT
-
+    geo = geometry3d(px, gx, tau)
+    d_gt, nn = geo.pop("_gt_to_pred")
     # label transfer: nearest prediction within tau, else void.
     reach = d_gt <= tau
     t_sem = np.zeros(m, dtype=np.int64)
     t_inst = np.zeros(m, dtype=np.int64)
     t_sem[reach] = ps[nn[reach]]
     t_inst[reach] = pi[nn[reach]]
-
-    # geometry.
-    if n:
-        accuracy = float(d_pred.mean())
-        completeness = float(d_gt.mean())
-        precision = float(np.mean(d_pred <= tau))
-    else:
-        accuracy = completeness = float("inf")
-        precision = 0.0
-    chamfer = 0.5 * (accuracy + completeness)
-    recall = float(np.mean(reach))
-    fscore = 0.0 if precision + recall == 0 else 2 * precision * recall / (precision + recall)
+    accuracy, completeness, chamfer = geo["accuracy"], geo["completeness"], geo["chamfer"]
+    precision, recall, fscore = geo["precision"], geo["recall"], geo["fscore"]
 
     # classes for PQ.
     things_s, stuff_s = _default_classes(ps, pi, gs, gi, things, stuff)
@@ -213,6 +201,35 @@ def points3d(
         "pq_detail": pq,
         "miou_detail": mi,
     }
+
+
+def geometry3d(pred_xyz, gt_xyz, tau: float) -> dict:
+    """Geometry of a predicted point cloud against GT points: ``accuracy`` (mean distance from each predicted
+    point to the GT), ``completeness`` (from each GT point to the prediction), ``chamfer`` (their mean),
+    ``precision`` / ``recall`` (shares within ``tau``), ``fscore``, ``tau``, ``n_pred``, ``n_gt``; and, under
+    ``_gt_to_pred``, each GT point's distance to and index of its nearest predicted point (for label transfer).
+
+    Examples
+    --------
+    >>> gt = np.array([[0.0, 0, 0], [1, 0, 0]])
+    >>> g = geometry3d(np.array([[0.0, 0, 0.005], [5, 5, 5]]), gt, tau=0.01)
+    >>> g["precision"], g["recall"], round(g["fscore"], 3)
+    (0.5, 0.5, 0.5)
+    """
+    gx, px = _xyz(gt_xyz, "gt_xyz"), _xyz(pred_xyz, "pred_xyz")
+    n = len(px)
+    d_gt, nn = nearest_distances(gx, cKDTree(px) if n else None)  # GT -> prediction
+    if n:
+        d_pred, _ = nearest_distances(px, cKDTree(gx))  # prediction -> GT
+        accuracy, completeness, precision = float(d_pred.mean()), float(d_gt.mean()), float(np.mean(d_pred <= tau))
+    else:
+        accuracy = completeness = float("inf")
+        precision = 0.0
+    recall = float(np.mean(d_gt <= tau))
+    fscore = 0.0 if precision + recall == 0 else 2 * precision * recall / (precision + recall)
+    return {"accuracy": accuracy, "completeness": completeness, "chamfer": 0.5 * (accuracy + completeness),
+            "precision": precision, "recall": recall, "fscore": float(fscore), "tau": float(tau), "n_pred": int(n),
+            "n_gt": int(len(gx)), "_gt_to_pred": (d_gt, nn)}
 
 
 def instance_recall(pred_inst, gt_sem, gt_inst, things, min_points: int = 500) -> tuple[int, int]:

@@ -121,6 +121,13 @@ def format_eval_table(m: dict) -> str:
                      f"{fmt(p.get('completeness'))}, Chamfer {fmt(p.get('chamfer'))}, F-score {fmt(p.get('fscore'))} "
                      f"(P {fmt(p.get('precision'))}, R {fmt(p.get('recall'))}) | objects found "
                      f"{fmt(p.get('instance_recall'))} of {p.get('n_instances')}")
+    g = m.get("geometry_from_depth")
+    if g:
+        lines.append(f"3D geometry ({g.get('source')}, {g.get('n_pred')} points vs {g.get('n_gt')} from the "
+                     f"{g.get('frames')} frames' {g.get('reference')} maps, tau {fmt(g.get('tau'))}): accuracy "
+                     f"{fmt(g.get('accuracy'))}, completeness {fmt(g.get('completeness'))}, Chamfer "
+                     f"{fmt(g.get('chamfer'))}, F-score {fmt(g.get('fscore'))} (P {fmt(g.get('precision'))}, "
+                     f"R {fmt(g.get('recall'))})")
     t = m.get("render_timing")
     if t:
         th = t.get("threads")

@@ -105,7 +105,7 @@ def resolve_source(source: str, scene: Scene | None = None) -> str:
 
 
 def image_depth_targets(scene: Scene, frames: np.ndarray, cfg: ImageDepthConfig, cache: Path | None = None,
-                        progress: bool = False) -> DepthTargets:
+                        progress: bool = False, sparse: SparsePoints | None = None) -> DepthTargets:
     """Depth targets for the frames of ``frames`` that have no depth map.
 
     Parameters
@@ -117,6 +117,9 @@ def image_depth_targets(scene: Scene, frames: np.ndarray, cfg: ImageDepthConfig,
     cache : Path, optional
         Folder (the run's ``image_depth/``) where points and maps computed here are kept and read back.
     progress : bool
+    sparse : SparsePoints, optional
+        Points the caller already has from :func:`scene_sparse_points` (the scene space is sized from them
+        before training); written to ``cache`` when they were triangulated.
 
     Returns
     -------
@@ -131,7 +134,12 @@ def image_depth_targets(scene: Scene, frames: np.ndarray, cfg: ImageDepthConfig,
             info["source"] = "none (every training frame has a depth map)"
         return DepthTargets.empty(info)
     t0 = time.perf_counter()
-    sparse, origin = _sparse_points(scene, frames, cache, progress)
+    if sparse is None:
+        sparse, origin = scene_sparse_points(scene, frames, cache, progress)
+    else:
+        origin = str(sparse.info.get("origin", "given"))
+        if cache is not None and origin == "triangulated":
+            write_sparse_points_files(cache, sparse)
     info["points_from"] = origin
     info["points"] = int(len(sparse))
     info["median_error_px"] = round(sparse.median_error, 3) if len(sparse) else None
@@ -182,15 +190,18 @@ def image_depth_targets(scene: Scene, frames: np.ndarray, cfg: ImageDepthConfig,
 
 
 # ------------------------------------------------------------------------------------------ sparse points
-def _sparse_points(scene: Scene, frames: np.ndarray, cache: Path | None, progress: bool) -> tuple[SparsePoints, str]:
-    """The scene's sparse points, else the cached ones, else triangulated now (and cached)."""
+def scene_sparse_points(scene: Scene, frames: np.ndarray, cache: Path | None, progress: bool
+                        ) -> tuple[SparsePoints, str]:
+    """The scene's sparse points, else the cached ones, else triangulated now from the images of ``frames``
+    (and cached when ``cache`` is given); and where they came from (also in ``info["origin"]``). Observations
+    index the scene's frames."""
     own = scene.sparse_points()
     if own is not None:
-        return own, f"scene ({_scene_points_source(scene)})"
+        return _with_origin(own, f"scene ({_scene_points_source(scene)})")
     names = [f.name for f in scene.frames]
     if cache is not None and (cache / "sparse" / "points3D.ply").is_file():
-        return read_sparse_points(cache / "sparse" / "points3D.ply", cache / "sparse" / "observations.npz",
-                                  frame_names=names), "triangulated (cached)"
+        return _with_origin(read_sparse_points(cache / "sparse" / "points3D.ply", cache / "sparse" / "observations.npz",
+                                               frame_names=names), "triangulated (cached)")
     # here, not at module level: keeps `import lift3d.train` cheap (OpenCV's feature code loads only when a
     # run triangulates)
     from lift3d.sfm import triangulate_scene
@@ -201,7 +212,12 @@ def _sparse_points(scene: Scene, frames: np.ndarray, cache: Path | None, progres
     # Observations index the triangulated frames; re-index them by scene frame.
     sparse.obs_frame = np.asarray(frames, np.int64)[sparse.obs_frame].astype(np.int32)
     sparse.frame_names = names
-    return sparse, "triangulated"
+    return _with_origin(sparse, "triangulated")
+
+
+def _with_origin(sparse: SparsePoints, origin: str) -> tuple[SparsePoints, str]:
+    sparse.info["origin"] = origin
+    return sparse, origin
 
 
 def _scene_points_source(scene: Scene) -> str:

@@ -22,6 +22,7 @@ from torch.profiler import record_function
 
 from lift3d import __version__
 from lift3d.data.scene import Scene, load_scene
+from lift3d.data.stereo import SparsePoints
 from lift3d.errors import InputError, TrainingDiverged
 from lift3d.eval.evaluate import compute_2d_metrics, gt_labels, json_safe, pseudo_labels, render_split
 from lift3d.eval.frame_metrics import frame_psnrs
@@ -29,8 +30,8 @@ from lift3d.eval.metrics import psnr
 from lift3d.field import grids
 from lift3d.model.config import Config, config_from_dict, load_config, load_yaml, save_config, update_dataclass
 from lift3d.model.labels import LabelSpace
-from lift3d.model.normalization import (SceneNormalization, derive_grid_resolution, infer_normalization,
-                                        typical_camera_distance)
+from lift3d.model.normalization import (ContentPoints, SceneNormalization, derive_grid_resolution,
+                                        infer_normalization, typical_camera_distance)
 from lift3d.model.panoptic import PanopticModel, count_parameters
 from lift3d.model.perceptual import build_perceptual_prior
 from lift3d.model.run import LoadedRun
@@ -43,6 +44,7 @@ from lift3d.train.image_depth import frames_without_depth, image_depth_targets
 from lift3d.train.distributed import DistContext, all_ranks_agree, broadcast_object, init_distributed, shutdown
 from lift3d.train.observed import observed_cells
 from lift3d.train.scene_sizes import instance_capacity, label_resolution
+from lift3d.train.scene_space import box_warnings, check_poses, scene_content
 from lift3d.utils.device import available_cpus, resolve_device, set_threads
 from lift3d.utils.threads import threads_from_environment
 from lift3d.utils.memory import peak_rss_mb
@@ -50,10 +52,12 @@ from lift3d.utils.progress import progress_bar
 
 
 # ------------------------------------------------------------------------------------------ configuration
-def resolve_config(scene: Scene, preset: str, overrides: dict | None) -> tuple[Config, SceneNormalization]:
+def resolve_config(scene: Scene, preset: str, overrides: dict | None,
+                   content: ContentPoints | None = None) -> tuple[Config, SceneNormalization]:
     """Preset + indoor/outdoor defaults + overrides, then sizes from the scene (except U and V, which need
-    the labels: see :func:`resolve_label_sizes`)."""
-    norm, why_bounded = infer_normalization(scene)
+    the labels: see :func:`resolve_label_sizes`). ``content``: where the scene's surfaces are
+    (:func:`lift3d.train.scene_space.scene_content`; default: the depth maps, if any)."""
+    norm, why_bounded = infer_normalization(scene, content=content)
     kind = "indoor" if norm.bounded else "outdoor"
     cfg = load_config(preset, kind, overrides)
     if cfg.field.contraction == "auto":
@@ -62,6 +66,9 @@ def resolve_config(scene: Scene, preset: str, overrides: dict | None) -> tuple[C
         why_bounded += f"; overridden by field.contraction={cfg.field.contraction}"
         norm.bounded = cfg.field.contraction == "none"
     notes = {"bounded": norm.bounded, "why_bounded": why_bounded, "kind_defaults": kind}
+    warnings = box_warnings(scene, content)
+    if warnings:
+        notes["scene_space_warnings"] = warnings
     if clipped_scene_box(scene, norm, cfg) is not None:
         # PanopticModel reads it: no density outside, rays start and stop at it
         if len(frames_without_depth(scene, scene.split("train"))) == 0:
@@ -173,7 +180,7 @@ class Trainer:
 
     def __init__(self, scene: Scene, cfg: Config, norm: SceneNormalization, run: RunFolder,
                  device: torch.device, progress: bool = True, labels: LabelSpace | None = None,
-                 dist_ctx: DistContext | None = None):
+                 dist_ctx: DistContext | None = None, sparse: SparsePoints | None = None):
         self.scene, self.cfg, self.norm, self.run, self.device = scene, cfg, norm, run, device
         self.ctx = dist_ctx or DistContext()
         self.progress = progress and self.ctx.is_main
@@ -182,7 +189,7 @@ class Trainer:
         if cfg.losses.image_depth > 0:
             # A resumed run reads the points it triangulated from its own folder (cached at the first start).
             targets = image_depth_targets(scene, scene.split("train"), cfg.image_depth, cache=run.path / IMAGE_DEPTH_CACHE,
-                                          progress=self.progress)
+                                          progress=self.progress, sparse=sparse)
             cfg.scene["image_depth"] = json_safe(targets.info)
         self.data = TrainingData(scene, scene.split("train"), self.rays, labels, progress=self.progress,
                                  depth_scale=norm.scale if cfg.losses.depth > 0 else None, targets=targets,
@@ -483,6 +490,7 @@ def _remove_if_empty(path: Path, keep_below: Path) -> None:
 
 def _train(data, preset, output_dir, overrides, resume, progress, print_summary, ctx: DistContext,
            device_name: str) -> TrainResult:
+    sparse = None
     if resume is not None:
         run = RunFolder.open(resume)
         cfg = config_from_dict(load_yaml(run.config_path), str(run.config_path))
@@ -497,7 +505,12 @@ def _train(data, preset, output_dir, overrides, resume, progress, print_summary,
         if data is None:
             raise InputError("--data", "a scene folder is required (or --resume RUN)")
         scene = load_scene(data)
-        cfg, norm = resolve_config(scene, preset, overrides)
+        pose_check = check_poses(scene)  # a pose file read with the wrong convention stops here, in one line
+        # The points that say where the surfaces are size the scene space; triangulated ones are the depth
+        # targets' starting points too (handed on below, not computed twice).
+        content, sparse = scene_content(scene, load_config(preset, "indoor", overrides), progress and ctx.is_main)
+        cfg, norm = resolve_config(scene, preset, overrides, content)
+        cfg.scene["pose_check"] = pose_check
         resolve_device(device_name if ctx.enabled else cfg.trainer.device)  # a bad --device leaves no empty run
         # One run folder for the whole job: rank 0 makes it, the others are told where it is.
         run_path = RunFolder.create(output_dir, scene.name, cfg.preset).path if ctx.is_main else None
@@ -512,7 +525,8 @@ def _train(data, preset, output_dir, overrides, resume, progress, print_summary,
     device = resolve_device(device_name if ctx.enabled else cfg.trainer.device)
     labels = LabelSpace.from_dict(cfg.scene["labels"]) if resume is not None and "labels" in cfg.scene else None
     try:
-        trainer = Trainer(scene, cfg, norm, run, device, progress=progress, labels=labels, dist_ctx=ctx)
+        trainer = Trainer(scene, cfg, norm, run, device, progress=progress, labels=labels, dist_ctx=ctx,
+                          sparse=sparse)
     except BaseException:
         if resume is None and ctx.is_main:
             _remove_if_empty(run.path, keep_below=Path(output_dir))  # e.g. a corrupt frame: no empty run left
@@ -594,6 +608,10 @@ def format_summary(result: TrainResult, cfg: Config) -> str:
         f"{'bounded' if cfg.field.contraction == 'none' else 'unbounded (' + cfg.field.contraction + ')'}"
         f"{', depth-supervised' if cfg.scene.get('depth_supervision') else ''}",
     ]
+    lines.append(f"  scene space    {cfg.scene.get('why_bounded', '')}")
+    lines += [f"  warning        {w}" for w in cfg.scene.get("scene_space_warnings", [])]
+    if cfg.scene.get("pose_check", {}).get("warning"):
+        lines.append(f"  warning        {cfg.scene['pose_check']['warning']}")
     lines += image_depth_lines(cfg.scene.get("image_depth"))
     if ev:
         lines.append(f"  held-out views PSNR {ev['psnr']:.2f} dB, mIoU {ev['miou']:.3f}, PQ^scene {ev['pq_scene']:.3f} "

@@ -1,0 +1,132 @@
+"""The scene space from the content (not the cameras), and the pose-convention check at load."""
+
+from __future__ import annotations
+
+import json
+import shutil
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from lift3d.data.cameras import opencv_to_opengl
+from lift3d.data.scene import load_scene
+from lift3d.errors import InputError
+from lift3d.model.normalization import ContentPoints, content_box, infer_normalization, share_outside
+from lift3d.sfm.pose_check import FIXES, check_pose_convention, with_fix
+from lift3d.train.scene_space import box_warnings, check_poses, scene_content
+
+
+@pytest.fixture(scope="module")
+def room(tmp_path_factory) -> Path:
+    """A synthetic room (sensor depth, 3D GT) whose cameras stand well inside it."""
+    from lift3d.synth import make_scene
+
+    root = tmp_path_factory.mktemp("scene_space") / "room"
+    make_scene(root, kind="indoor", seed=5, n_views=20, width=96, height=96, progress=False)
+    return root
+
+
+def _without_scene_box(src: Path, dst: Path, depth: bool = True) -> Path:
+    shutil.copytree(src, dst)
+    meta = json.loads((dst / "transforms.json").read_text())
+    meta.pop("scene_box", None)
+    if not depth:
+        for f in meta["frames"]:
+            f.pop("depth_file_path", None)
+    (dst / "transforms.json").write_text(json.dumps(meta))
+    return dst
+
+
+def test_box_from_depth_holds_the_room_not_just_the_cameras(room, tmp_path):
+    scene = load_scene(_without_scene_box(room, tmp_path / "nobox"))
+    gt = scene.gt_points()["xyz"]
+    norm, why = infer_normalization(scene)
+    assert norm.bounded and why.startswith("depth maps (")
+    # the room's surfaces, not the cameras' spread: at most the content quantiles' tails outside
+    assert share_outside(norm.aabb_world, gt) < 0.02
+    cams = scene.cameras.centers
+    cam_box = np.ptp(cams, axis=0)
+    assert np.all(np.ptp(norm.aabb_world, axis=0) > cam_box)
+    # the camera-layout rule, which ignores the content, leaves much of the room out
+    no_content = load_scene(_without_scene_box(room, tmp_path / "nobox_nodepth", depth=False))
+    norm_cams, why_cams = infer_normalization(no_content)
+    assert why_cams.startswith("camera layout")
+    assert share_outside(norm_cams.aabb_world, gt) > 0.3
+
+
+def test_box_from_triangulated_points_when_there_is_no_depth(room, tmp_path):
+    from lift3d.model.config import load_config
+
+    scene = load_scene(_without_scene_box(room, tmp_path / "nodepth", depth=False))
+    content, sparse = scene_content(scene, load_config("fast", "indoor", None))
+    assert sparse is not None and len(sparse) > 50 and content.source.startswith("points triangulated")
+    norm, why = infer_normalization(scene, content=content)
+    assert norm.bounded and why.startswith("points triangulated")
+    assert share_outside(norm.aabb_world, scene.gt_points()["xyz"]) < 0.05
+    # with depth targets off, nothing is triangulated just to size the space
+    off = load_config("fast", "indoor", {"losses": {"image_depth": 0.0}})
+    assert scene_content(scene, off) == (None, None)
+
+
+def test_content_that_reaches_far_is_unbounded():
+    rng = np.random.default_rng(0)
+    cams = np.c_[np.linspace(0, 2, 10), np.zeros(10), np.zeros(10)]
+    street = np.r_[rng.uniform([-5, -2, 5], [5, 2, 15], (3000, 3)), rng.uniform([-50, -5, 80], [50, 20, 200], (300, 3))]
+    box, bounded, why = content_box(ContentPoints(street, "points"), cams)
+    assert not bounded and "unbounded" in why
+    # the foreground box holds the near content and the cameras, not the far buildings
+    assert box[1, 2] < 60 and box[0, 0] <= 0 and box[1, 0] >= 2
+
+
+def test_a_scene_box_that_cuts_the_content_is_reported(room, tmp_path):
+    dst = tmp_path / "small_box"
+    shutil.copytree(room, dst)
+    meta = json.loads((dst / "transforms.json").read_text())
+    lo, hi = np.asarray(meta["scene_box"]["aabb"], float)
+    meta["scene_box"]["aabb"] = [lo.tolist(), (lo + 0.5 * (hi - lo)).tolist()]
+    (dst / "transforms.json").write_text(json.dumps(meta))
+    scene = load_scene(dst)
+    from lift3d.model.normalization import depth_content
+
+    warnings = box_warnings(scene, depth_content(scene))
+    assert len(warnings) == 1 and "outside it" in warnings[0] and "%" in warnings[0]
+    assert box_warnings(load_scene(room), depth_content(load_scene(room))) == []
+
+
+def _cameras(scene, c2w_opencv: np.ndarray):
+    return replace(scene.cameras, c2w=np.stack([opencv_to_opengl(m) for m in c2w_opencv]))
+
+
+@pytest.mark.parametrize("use_depth", [True, False])
+def test_pose_check_names_the_convention_mix_up(room, use_depth):
+    scene = load_scene(room)
+    frames = scene.split("train")
+    depth = scene.depth if use_depth else None
+    good = check_pose_convention(scene.cameras, frames, scene.image, depth)
+    assert good.method == ("depth" if use_depth else "epipolar")
+    assert good.fits and good.likely_fix is None and len(good.pairs) >= 2
+    for mix_up in FIXES:  # each fix is also a mix-up a pose file can hold
+        as_read = with_fix(scene.cameras.c2w_opencv, mix_up)
+        wrong = check_pose_convention(_cameras(scene, as_read), frames, scene.image, depth)
+        assert not wrong.fits and wrong.likely_fix is not None, (mix_up, wrong.describe())
+        # the fix named undoes the mix-up (up to a rotation of the whole world, which the images cannot see)
+        again = check_pose_convention(_cameras(scene, with_fix(as_read, wrong.likely_fix)), frames, scene.image, depth)
+        assert again.fits, (mix_up, wrong.likely_fix, again.describe())
+
+
+def test_training_stops_on_inverted_poses_with_one_line(room, tmp_path):
+    dst = tmp_path / "inverted"
+    shutil.copytree(room, dst)
+    meta = json.loads((dst / "transforms.json").read_text())
+    for f in meta["frames"]:
+        f["transform_matrix"] = np.linalg.inv(np.asarray(f["transform_matrix"])).tolist()
+    (dst / "transforms.json").write_text(json.dumps(meta))
+    with pytest.raises(InputError) as err:
+        check_poses(load_scene(dst))
+    text = str(err.value)
+    # transforms.json holds OpenGL camera-to-world matrices: its own matrices inverted need only inverting
+    assert "transforms.json" in text and "world-to-camera" in text and "fix: invert each" in text
+    assert "\n" not in text
+    assert check_poses(load_scene(room))["likely_fix"] is None
