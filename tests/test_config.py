@@ -8,6 +8,8 @@ import pytest
 from lift3d.errors import InputError
 from lift3d.field.registry import FIELD_KINDS, FieldConfig, build_field
 from lift3d.model.config import (
+    PRESETS,
+    SCENE_KINDS,
     SECTIONS,
     Config,
     add_config_flags,
@@ -116,6 +118,37 @@ def test_every_setting_is_documented_and_is_a_flag():
     cfg = load_config("fast", overrides=overrides_from_args(args))
     assert cfg.optim.steps == 5 and cfg.field.grid.understanding_resolutions == (16, 32) and cfg.losses.feature == 0.0
     assert cfg.field.kind == "mlp" and cfg.field.mlp.width == 64 and cfg.field.kind_config is cfg.field.mlp
+
+
+def _flag_help() -> dict[str, str]:
+    parser = argparse.ArgumentParser()
+    add_config_flags(parser)
+    return {a.dest[4:]: " ".join(a.help.split()) for a in parser._actions if a.dest.startswith("cfg:")}
+
+
+def test_help_of_a_preset_setting_shows_the_preset_value():
+    """The presets all set losses.image_depth to 0.1; its dataclass default 0.0 alone would mislead."""
+    helps = _flag_help()
+    assert load_config("fast").losses.image_depth == 0.1 and Config().losses.image_depth == 0.0
+    assert helps["losses.image_depth"].endswith("(default: 0.1 in every preset, else 0.0)")
+    assert helps["optim.steps"].endswith("(default: 1500 in fast, 5000 in balanced, 10000 in quality, else 3000)")
+    assert helps["sampling.near_plane"].endswith("(default: 0.02 for bounded, 0.05 for unbounded scenes)")
+    assert helps["trainer.seed"].endswith("(default: 0)")
+
+
+def test_help_names_every_value_a_run_can_start_from():
+    """Whatever preset and scene kind a run gets, each setting's help names the value it starts from."""
+    helps = _flag_help()
+    for preset in PRESETS:
+        for kind in SCENE_KINDS:
+            cfg = load_config(preset, kind)
+            for section in SECTIONS:
+                for path, sub in _sections(getattr(cfg, section), section):
+                    for f in dataclasses.fields(sub):
+                        value = getattr(sub, f.name)
+                        if not dataclasses.is_dataclass(value):
+                            default = helps[f"{path}.{f.name}"].rsplit("(default: ", 1)[1]
+                            assert repr(value) in default, (preset, kind, f"{path}.{f.name}", default)
 
 
 @pytest.mark.parametrize("kind", sorted(FIELD_KINDS))

@@ -3,6 +3,7 @@ split rule, and one test per validation error, each checking that the message na
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import shutil
 from pathlib import Path
@@ -553,6 +554,61 @@ def test_bad_scene_box(tiny_scene: Path, box: dict, fragment: str) -> None:
 def test_unknown_camera_model(tiny_scene: Path) -> None:
     _edit_json(tiny_scene / "transforms.json", lambda m: m.__setitem__("camera_model", "FISHEYE_624"))
     _expect_error(lambda: load_scene(tiny_scene), tiny_scene / "transforms.json", "camera_model: 'FISHEYE_624'")
+
+
+def test_distortion_without_camera_model_is_opencv_with_a_note(tiny_scene: Path, capsys) -> None:
+    """nerfstudio applies k1..p2 to any perspective camera: coefficients without a model must not vanish."""
+    from lift3d.data import scene as scene_module
+
+    def edit(meta: dict) -> None:
+        meta.pop("camera_model", None)
+        meta["k1"] = -0.08  # shared, and one frame with its own tangential term
+        meta["frames"][2].update(p1=0.002, k2=0.01)
+
+    _edit_json(tiny_scene / "transforms.json", edit)
+    scene_module._NOTED_DEFAULT_MODEL.clear()
+    cams = load_scene(tiny_scene).cameras
+    assert cams.camera_model == "OPENCV" and cams.has_distortion
+    np.testing.assert_array_equal(cams.distortion[0], [-0.08, 0, 0, 0, 0])  # k1 k2 p1 p2 k3
+    np.testing.assert_array_equal(cams.distortion[2], [-0.08, 0.01, 0.002, 0, 0])
+    # The model really is used: the image centre ray is unchanged, a corner ray is bent by k1 < 0.
+    pinhole = dataclasses.replace(cams, camera_model="PINHOLE")
+    centre, corner = (np.array([7.5]), np.array([5.5])), (np.array([0]), np.array([0]))
+    np.testing.assert_allclose(cams.rays(0, *centre)[1], pinhole.rays(0, *centre)[1], atol=2e-3)
+    assert not np.allclose(cams.rays(0, *corner)[1], pinhole.rays(0, *corner)[1], atol=1e-3)
+    err = capsys.readouterr().err
+    assert err.count("\n") == 1 and "camera_model is missing but k1, k2, p1 are non-zero" in err and "OPENCV" in err
+    load_scene(tiny_scene)  # noted once per scene, not on every load
+    assert capsys.readouterr().err == ""
+
+
+def test_zero_coefficients_without_camera_model_stay_pinhole(tiny_scene: Path, capsys) -> None:
+    _edit_json(tiny_scene / "transforms.json",
+               lambda m: (m.pop("camera_model", None), m.update(k1=0.0, k2=0, p1=0.0, p2=0.0)))
+    assert load_scene(tiny_scene).cameras.camera_model == "PINHOLE"
+    assert capsys.readouterr().err == ""
+
+
+@pytest.mark.parametrize("model, frame_key, problem", [
+    (None, "k4", "frames[3].k4: 0.01 is non-zero, but camera_model OPENCV has no k4 (it uses k1 k2 p1 p2 k3)"),
+    ("OPENCV", "k4", "frames[3].k4: 0.01 is non-zero, but camera_model OPENCV has no k4"),
+    ("OPENCV_FISHEYE", "p2", "frames[3].p2: 0.01 is non-zero, but camera_model OPENCV_FISHEYE has no p2"),
+    ("PINHOLE", "k1", "frames[3].k1: 0.01 is non-zero, but camera_model PINHOLE has no k1 (it uses no distortion)"),
+])
+def test_a_coefficient_the_model_does_not_use_is_an_error(tiny_scene: Path, model, frame_key: str, problem: str) -> None:
+    def edit(meta: dict) -> None:
+        meta.pop("camera_model", None)
+        if model is not None:
+            meta["camera_model"] = model
+        meta["frames"][3][frame_key] = 0.01
+
+    _edit_json(tiny_scene / "transforms.json", edit)
+    _expect_error(lambda: load_scene(tiny_scene), tiny_scene / "transforms.json", problem)
+
+
+def test_unnamed_distortion_params_are_refused(tiny_scene: Path) -> None:
+    _edit_json(tiny_scene / "transforms.json", lambda m: m.__setitem__("distortion_params", [0.1, 0, 0, 0, 0, 0]))
+    _expect_error(lambda: load_scene(tiny_scene), tiny_scene / "transforms.json", "distortion_params: not read")
 
 
 @pytest.mark.parametrize("values, fragment", [

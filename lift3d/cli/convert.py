@@ -1,4 +1,4 @@
-"""``lift3d convert --from colmap|panoptic-lifting|scannet SRC --out DIR``: other inputs into a scene folder.
+"""``lift3d convert --from colmap|nerfstudio|panoptic-lifting|scannet SRC --out DIR``: other inputs into a scene folder.
 
 See ``docs/convert.md`` for the folder layouts each source expects and the conventions they follow.
 """
@@ -12,6 +12,7 @@ from lift3d.errors import InputError
 
 EPILOG = """examples:
   lift3d convert --from colmap my_capture --predictions my_capture/m2f --out scenes/my_capture
+  lift3d convert --from nerfstudio data/fox/transforms.json --predictions data/fox/m2f --out scenes/fox
   lift3d convert --from scannet scans/scene0423_02 --predictions preds/scene0423_02 \\
       --categories classes.json --out scenes/scene0423_02 --downscale 2
   lift3d convert --from panoptic-lifting data/replica/room_0 --out scenes/room_0
@@ -22,25 +23,28 @@ def add_parser(subparsers: argparse._SubParsersAction, verb: str) -> argparse.Ar
     """Create the ``convert`` sub-command."""
     p = subparsers.add_parser(
         verb,
-        help="convert COLMAP, Panoptic Lifting or ScanNet-style inputs into a scene folder",
+        help="convert COLMAP, nerfstudio/instant-ngp, Panoptic Lifting or ScanNet-style inputs into a scene folder",
         description="Convert posed images plus 2D panoptic predictions from another layout into lift3d's "
                     "scene folder (transforms.json with OpenGL camera-to-world poses, COCO panoptic "
                     "pseudo-labels, optional ground truth and depth). The result is read back to check it.",
         epilog=EPILOG,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
-    p.add_argument("--from", dest="source", required=True, choices=["colmap", "panoptic-lifting", "scannet"],
-                   help="the layout of SRC")
+    p.add_argument("--from", dest="source", required=True,
+                   choices=["colmap", "nerfstudio", "instant-ngp", "panoptic-lifting", "scannet"],
+                   help="the layout of SRC (instant-ngp is the nerfstudio reader: one reader for both tools' "
+                        "transforms.json)")
     p.add_argument("src", metavar="SRC", type=Path,
                    help="colmap: a sparse model folder or a workspace holding sparse/0, sparse or "
-                        "colmap/sparse/0; panoptic-lifting / scannet: the scene folder")
+                        "colmap/sparse/0; nerfstudio: a transforms.json or the folder holding one; "
+                        "panoptic-lifting / scannet: the scene folder")
     p.add_argument("--out", required=True, type=Path, metavar="DIR", help="output scene folder")
     p.add_argument("--images", type=Path, metavar="DIR",
                    help="colmap: folder the image names in images.txt|bin are relative to (default: "
                         "SRC/images, else an images/ folder beside the model folder or up to three levels "
                         "above it)")
     p.add_argument("--predictions", type=Path, metavar="DIR",
-                   help="colmap, scannet (required): 2D panoptic predictions per image, matched by file "
+                   help="colmap, nerfstudio, scannet (required): 2D panoptic predictions per image, matched by file "
                         "stem: COCO panoptic (panoptic.json + PNGs) or semantic/ + instance/ PNG folders")
     p.add_argument("--categories", type=Path, metavar="FILE",
                    help="JSON list of COCO panoptic categories {id, name, isthing, color} (or a COCO panoptic "
@@ -60,7 +64,7 @@ def add_parser(subparsers: argparse._SubParsersAction, verb: str) -> argparse.Ar
     p.add_argument("--no-gt", action="store_true",
                    help="panoptic-lifting: ignore rs_semantics/ + rs_instance/ ground truth")
     p.add_argument("--no-depth", action="store_true",
-                   help="panoptic-lifting, scannet: ignore depth/*.png")
+                   help="nerfstudio, panoptic-lifting, scannet: ignore the depth maps")
     p.add_argument("--depth-scale", type=float, default=1e-3, metavar="M",
                    help="metres per unit of the uint16 depth PNGs, in the input and the output "
                         "(default: %(default)s = millimetres)")
@@ -109,6 +113,15 @@ def run(args: argparse.Namespace) -> int:
         scene = colmap.convert(args.src, args.out, predictions=args.predictions, images=args.images,
                                categories=categories, things=things, test_every=args.test_every,
                                scene_box=args.scene_box, keep_points=not args.no_points, options=options)
+    elif args.source in ("nerfstudio", "instant-ngp"):
+        # here, not at module level: keeps `lift3d --help` cheap
+        from lift3d.convert import nerfstudio
+
+        if args.predictions is None:
+            raise InputError("--predictions", f"required with --from {args.source} (2D panoptic predictions per image)")
+        scene = nerfstudio.convert(args.src, args.out, predictions=args.predictions, categories=categories,
+                                   things=things, test_every=args.test_every, use_depth=not args.no_depth,
+                                   options=options)
     elif args.source == "scannet":
         # here, not at module level: keeps `lift3d --help` cheap
         from lift3d.convert import scannet
@@ -136,9 +149,9 @@ _ONLY_FOR = {
     "images": ("--images", {"colmap"}),
     "scene_box": ("--scene-box", {"colmap"}),
     "no_points": ("--no-points", {"colmap"}),
-    "predictions": ("--predictions", {"colmap", "scannet"}),
+    "predictions": ("--predictions", {"colmap", "nerfstudio", "instant-ngp", "scannet"}),
     "intrinsics_size": ("--intrinsics-size", {"scannet", "panoptic-lifting"}),
-    "no_depth": ("--no-depth", {"scannet", "panoptic-lifting"}),
+    "no_depth": ("--no-depth", {"nerfstudio", "instant-ngp", "scannet", "panoptic-lifting"}),
     "no_gt": ("--no-gt", {"panoptic-lifting"}),
     "no_confidence": ("--no-confidence", {"panoptic-lifting"}),
 }

@@ -14,7 +14,10 @@ HELP = "train a panoptic radiance field on a scene folder"
 DESCRIPTION = """\
 Train a panoptic radiance field (the paper's model S and losses) on a scene folder. Sizes the scene
 determines (semantic classes U, instance channels V, bounded/unbounded, grid resolution) are derived and
-written to the run folder's config.yml; every setting below overrides the preset.
+written to the run folder's config.yml; every setting below overrides the preset. A setting's default
+names the built-in presets' values where they differ from the plain default ("else": a --preset YAML file
+that does not set it) and the bounded/unbounded scene defaults of configs/indoor.yaml and outdoor.yaml,
+which apply after the preset (docs/presets.md).
 
 Run folder: <output-dir>/<scene>/<preset>/<YYYY-MM-DD_HHMMSS>/ with config.yml, transform.json,
 checkpoints/, log.jsonl. Checkpoints are atomic; `--resume RUN` continues from the newest readable one.

@@ -38,6 +38,8 @@ from lift3d.utils.progress import progress_bar
 #: The ``--from`` choices and the module that reads each.
 SOURCES = {
     "colmap": "lift3d.convert.colmap",
+    "nerfstudio": "lift3d.convert.nerfstudio",
+    "instant-ngp": "lift3d.convert.nerfstudio",  # the same reader: the file's keys tell the two dialects apart
     "panoptic-lifting": "lift3d.convert.panoptic_lifting",
     "scannet": "lift3d.convert.scannet",
 }
@@ -100,7 +102,11 @@ class FrameInput:
     depth_path : Path or None
         Optional depth image (uint16; ``depth_scale`` metres per unit).
     mask_path : Path or None
-        Optional mask: non-zero pixels are **ignored** during training (Panoptic Lifting's ``invalid/``).
+        Optional mask: non-zero pixels are **ignored** during training (Panoptic Lifting's ``invalid/``),
+        unless ``mask_marks_valid``.
+    mask_marks_valid : bool
+        The mask's non-zero pixels are the ones to **train on** and zeros are ignored (nerfstudio's
+        ``mask_path``).
     """
 
     name: str
@@ -114,6 +120,7 @@ class FrameInput:
     gt: Callable[[], PanopticFrame] | None = None
     depth_path: Path | None = None
     mask_path: Path | None = None
+    mask_marks_valid: bool = False
 
 
 @dataclass
@@ -339,7 +346,9 @@ def write_scene(
         if gt is not None:
             _check_categories(gt, cat_ids)
         depth = read_depth(fr.depth_path, opts.depth_scale) if fr.depth_path is not None else None
-        mask = read_label_map(fr.mask_path) > 0 if fr.mask_path is not None else None
+        mask = None  # True = pixel left out of training
+        if fr.mask_path is not None:
+            mask = (read_label_map(fr.mask_path) > 0) != fr.mask_marks_valid
 
         # Labels predicted at another resolution (segmenters often run downscaled) are brought to the image
         # size with nearest neighbour, which keeps ids exact; depth likewise (ScanNet's depth is 640x480).

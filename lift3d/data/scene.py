@@ -31,6 +31,7 @@ from __future__ import annotations
 import dataclasses
 import math
 import os
+import sys
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Iterable
@@ -464,12 +465,58 @@ def _intrinsics(meta: dict, frame: dict, where: Path, k: int) -> tuple[float, ..
         raise InputError(where, f"fl_x/fl_y: focal lengths must be positive (got {fx}, {fy})")
     if not (0 <= cx <= w and 0 <= cy <= h):
         raise InputError(where, f"cx/cy: principal point ({cx}, {cy}) lies outside the {int(w)}x{int(h)} image")
-    dist = [0.0] * 5
-    names = ("k1", "k2", "p1", "p2", "k3") if meta.get("camera_model", "OPENCV") != "OPENCV_FISHEYE" else ("k1", "k2", "k3", "k4")
-    for j, key in enumerate(names):
-        if key in frame or key in meta:
-            dist[j] = get(key)
-    return fx, fy, cx, cy, w, h, *dist
+    return fx, fy, cx, cy, w, h
+
+
+#: Every distortion coefficient a ``transforms.json`` may give by name (nerfstudio's keys).
+DISTORTION_KEYS = ("k1", "k2", "k3", "k4", "p1", "p2")
+
+
+def _distortion(meta: dict, frame: dict, where: Path, k: int) -> dict[str, tuple[float, str]]:
+    """The frame's distortion coefficients by name, each with the field it came from (for errors): the
+    frame's own value first, then the top level's."""
+    out = {}
+    for key in DISTORTION_KEYS:
+        if key in frame:
+            out[key] = (_number(frame, key, where, f"frames[{k}].{key}"), f"frames[{k}].{key}")
+        elif key in meta:
+            out[key] = (_number(meta, key, where, key), key)
+    return out
+
+
+def _camera_model(meta: dict, coefficients: list[dict[str, tuple[float, str]]], where: Path) -> str:
+    """The scene's camera model, checked against the distortion coefficients the frames give.
+
+    ``camera_model`` absent: ``PINHOLE`` when every coefficient is 0, else ``OPENCV`` — nerfstudio applies
+    ``k1 k2 k3 p1 p2`` to every perspective camera, whatever its model, so a capture with coefficients and no
+    model is distorted. A non-zero coefficient the model does not use (``k4`` under ``OPENCV``, where nerfstudio
+    reads it as an r^8 term OpenCV lacks; ``p1 p2`` under ``OPENCV_FISHEYE``; any under ``PINHOLE``) is an
+    error rather than being dropped.
+    """
+    if "camera_model" in meta:
+        model = str(meta["camera_model"])
+        if model not in CAMERA_MODELS:
+            raise InputError(where, f"camera_model: {model!r} is not one of {sorted(CAMERA_MODELS)}")
+    else:
+        used = sorted({key for coeffs in coefficients for key, (value, _) in coeffs.items() if value != 0.0},
+                      key=DISTORTION_KEYS.index)
+        model = "OPENCV" if used else "PINHOLE"
+        if used and str(where) not in _NOTED_DEFAULT_MODEL:
+            _NOTED_DEFAULT_MODEL.add(str(where))
+            print(f"lift3d: note: {where}: camera_model is missing but {', '.join(used)} "
+                  f"{'is' if len(used) == 1 else 'are'} non-zero: read as camera_model OPENCV, as nerfstudio "
+                  "does", file=sys.stderr)
+    for coeffs in coefficients:
+        for key, (value, field_name) in coeffs.items():
+            if value != 0.0 and key not in CAMERA_MODELS[model]:
+                raise InputError(where, f"{field_name}: {value} is non-zero, but camera_model {model} has no "
+                                        f"{key} (it uses {' '.join(CAMERA_MODELS[model]) or 'no distortion'}); "
+                                        "undistort the images or name the right camera_model")
+    return model
+
+
+# Scenes whose missing camera_model was already reported (each is noted once per process, not on every load).
+_NOTED_DEFAULT_MODEL: set[str] = set()
 
 
 def read_transforms(root: str | Path) -> tuple[Path, dict]:
@@ -521,9 +568,10 @@ def load_scene(root: str | Path) -> Scene:
     tpath, meta = read_transforms(root)
     frames_raw = meta["frames"]
 
-    camera_model = str(meta.get("camera_model", "PINHOLE"))
-    if camera_model not in CAMERA_MODELS:
-        raise InputError(tpath, f"camera_model: {camera_model!r} is not one of {sorted(CAMERA_MODELS)}")
+    if "distortion_params" in meta or any(isinstance(f, dict) and "distortion_params" in f for f in frames_raw):
+        # nerfstudio's unnamed list (k1 k2 k3 k4 p1 p2, or 12 values for FISHEYE624): refused, not dropped.
+        raise InputError(tpath, "distortion_params: not read; give the coefficients by name (k1 k2 k3 k4 p1 p2), "
+                                "or convert the file with `lift3d convert --from nerfstudio`")
 
     # Categories: transforms.json first, else the COCO panoptic JSON's own list.
     pan_json_path = root / str(meta.get("panoptic_json", "panoptic.json"))
@@ -542,7 +590,7 @@ def load_scene(root: str | Path) -> Scene:
     )
 
     frames: list[Frame] = []
-    c2ws, intr = [], []
+    c2ws, intr, coefficients = [], [], []
     seen_paths: dict[str, int] = {}
     for k, fr in enumerate(frames_raw):
         if not isinstance(fr, dict):
@@ -566,6 +614,7 @@ def load_scene(root: str | Path) -> Scene:
             raise InputError(tpath, f"frames[{k}].transform_matrix: not a rigid transform (rotation must be orthonormal with det +1)")
         c2ws.append(c2w)
         intr.append(_intrinsics(meta, fr, tpath, k))
+        coefficients.append(_distortion(meta, fr, tpath, k))
         name = Path(fp).stem
         frame = Frame(name=name, file_path=fp, image_path=img_path)
 
@@ -622,10 +671,16 @@ def load_scene(root: str | Path) -> Scene:
     if len({f.name for f in frames}) != len(frames):
         raise InputError(tpath, "frames: two frames share a file name stem (outputs are named by stem)")
 
+    camera_model = _camera_model(meta, coefficients, tpath)
+    # Cameras keeps OpenCV's order: k1 k2 p1 p2 k3 (OPENCV) or k1 k2 k3 k4 (OPENCV_FISHEYE), zeros after.
+    distortion = np.zeros((len(frames), 5))
+    for k, coeffs in enumerate(coefficients):
+        for j, key in enumerate(CAMERA_MODELS[camera_model]):
+            distortion[k, j] = coeffs.get(key, (0.0, ""))[0]
     intr_a = np.asarray(intr)
     cameras = Cameras(
         c2w=np.stack(c2ws), fx=intr_a[:, 0], fy=intr_a[:, 1], cx=intr_a[:, 2], cy=intr_a[:, 3],
-        width=intr_a[:, 4], height=intr_a[:, 5], camera_model=camera_model, distortion=intr_a[:, 6:11],
+        width=intr_a[:, 4], height=intr_a[:, 5], camera_model=camera_model, distortion=distortion,
     )
     splits = _splits(meta, frames, tpath)
 

@@ -26,7 +26,7 @@ import typing
 from dataclasses import dataclass
 from dataclasses import field as dc_field
 from pathlib import Path
-from typing import Any, Sequence
+from typing import Any, Iterator, Sequence
 
 import yaml
 
@@ -422,18 +422,92 @@ def field_docs(cls: type) -> dict[str, str]:
     return docs
 
 
+#: The scene kinds whose defaults (configs/<kind>.yaml) training applies after the preset, and when.
+SCENE_KINDS = {"indoor": "bounded", "outdoor": "unbounded"}
+
+
+def _leaves(obj: Any, path: str) -> Iterator[tuple[str, Any]]:
+    """``(dotted path, value)`` of every leaf setting of a configuration section."""
+    for f in dataclasses.fields(obj):
+        value = getattr(obj, f.name)
+        if dataclasses.is_dataclass(value):
+            yield from _leaves(value, f"{path}.{f.name}")
+        else:
+            yield f"{path}.{f.name}", value
+
+
+def _by_preset(values: dict[str, Any], fallback: Any) -> str:
+    """``values`` (preset name → value) and the value of a preset file that leaves the setting out, in words.
+
+    >>> _by_preset({"fast": 1, "balanced": 2, "quality": 2}, 3)
+    '1 in fast, 2 in balanced and quality, else 3'
+    >>> _by_preset({"fast": 0.1, "balanced": 0.1}, 0.0), _by_preset({"fast": 5}, 5)
+    ('0.1 in every preset, else 0.0', '5')
+    """
+    distinct = list(dict.fromkeys(values.values()))
+    if distinct == [fallback]:
+        return repr(fallback)
+    if len(distinct) == 1:
+        text = f"{distinct[0]!r} in every preset"
+    else:
+        text = ", ".join(f"{v!r} in " + " and ".join(n for n, x in values.items() if x == v) for v in distinct)
+    return f"{text}, else {fallback!r}"
+
+
+def preset_defaults(sections: Sequence[str] = SECTIONS) -> dict[str, str]:
+    """What each run setting really defaults to, in words, for the ``--help`` of ``lift3d train``.
+
+    A run's value comes from the dataclass default, then the preset (:data:`PRESETS` or a YAML file), then
+    the scene kind's defaults (:data:`SCENE_KINDS`), so the dataclass default alone misstates every setting
+    a preset or a kind file sets. The text is built from the files themselves.
+
+    Returns
+    -------
+    dict
+        Dotted setting path (``losses.image_depth``) → e.g. ``0.1 in every preset, else 0.0``, or
+        ``0.02 for bounded, 0.05 for unbounded scenes``. Settings nothing overrides map to ``repr`` of their
+        default.
+
+    Examples
+    --------
+    >>> text = preset_defaults()
+    >>> text["losses.image_depth"], text["optim.steps"]
+    ('0.1 in every preset, else 0.0', '1500 in fast, 5000 in balanced, 10000 in quality, else 3000')
+    >>> text["sampling.near_plane"], text["trainer.seed"]
+    ('0.02 for bounded, 0.05 for unbounded scenes', '0')
+    """
+    def values(cfg: Config) -> dict[str, Any]:
+        return {key: value for section in sections for key, value in _leaves(getattr(cfg, section), section)}
+
+    # A --preset YAML of the user's that does not set a field leaves the dataclass default to the kind file.
+    fallback = {kind: values(update_dataclass(Config(), upgrade_config_dict(load_yaml(preset_path(kind))), kind))
+                for kind in SCENE_KINDS}
+    by_kind = {kind: {p: values(load_config(p, kind)) for p in PRESETS} for kind in SCENE_KINDS}
+    text = {}
+    for key in values(Config()):
+        per_kind = {kind: _by_preset({p: by_kind[kind][p][key] for p in PRESETS}, fallback[kind][key])
+                    for kind in SCENE_KINDS}
+        if len(set(per_kind.values())) == 1:
+            text[key] = next(iter(per_kind.values()))
+        else:
+            text[key] = ", ".join(f"{t} for {SCENE_KINDS[kind]}" for kind, t in per_kind.items()) + " scenes"
+    return text
+
+
 def add_config_flags(parser: argparse.ArgumentParser, root: Any = None, sections: Sequence[str] = SECTIONS) -> None:
     """One flag per leaf setting: ``--<section>.<field-name>``, and ``--<section>.<sub>.<field-name>`` in a
     nested section such as ``field.grid`` (dest ``cfg:<dotted path>``); one argument group per section.
 
-    ``root`` is the configuration tree whose ``sections`` become flags (default: the run configuration;
-    ``lift3d triangulate`` passes its :class:`~lift3d.sfm.config.SfmConfig`)."""
+    ``root`` is the configuration tree whose ``sections`` become flags (default: the run configuration, whose
+    help gives the presets' and scene kinds' values, :func:`preset_defaults`; ``lift3d triangulate`` passes
+    its :class:`~lift3d.sfm.config.SfmConfig`, whose help gives the dataclass defaults)."""
     defaults = Config() if root is None else root
+    default_text = preset_defaults(sections) if root is None else {}
     for section in sections:
-        _add_section_flags(parser, section, getattr(defaults, section))
+        _add_section_flags(parser, section, getattr(defaults, section), default_text)
 
 
-def _add_section_flags(parser: argparse.ArgumentParser, path: str, obj: Any) -> None:
+def _add_section_flags(parser: argparse.ArgumentParser, path: str, obj: Any, default_text: dict[str, str]) -> None:
     docs = field_docs(type(obj))
     hints = _hints(type(obj))
     group = parser.add_argument_group(f"{path} settings", (type(obj).__doc__ or "").strip().split("\n")[0])
@@ -445,8 +519,9 @@ def _add_section_flags(parser: argparse.ArgumentParser, path: str, obj: Any) -> 
             continue
         tp = hints[f.name]
         flag = f"--{path}.{f.name.replace('_', '-')}"
+        default = default_text.get(f"{path}.{f.name}", repr(value))
         kwargs: dict[str, Any] = dict(dest=f"cfg:{path}.{f.name}", default=argparse.SUPPRESS,
-                                      help=f"{docs.get(f.name, '')} (default: {value!r})".replace("%", "%%"))
+                                      help=f"{docs.get(f.name, '')} (default: {default})".replace("%", "%%"))
         if typing.get_origin(tp) in (tuple, list):
             kwargs.update(nargs="*", metavar="V")
         elif tp is bool:
@@ -455,7 +530,7 @@ def _add_section_flags(parser: argparse.ArgumentParser, path: str, obj: Any) -> 
             kwargs.update(metavar=tp.__name__.upper() if isinstance(tp, type) else "V")
         group.add_argument(flag, **kwargs)
     for sub_path, sub in nested:
-        _add_section_flags(parser, sub_path, sub)
+        _add_section_flags(parser, sub_path, sub, default_text)
 
 
 def overrides_from_args(args: argparse.Namespace) -> dict:
