@@ -31,7 +31,8 @@ and instant-ngp's ``src/nerf_loader.cu``, ``include/neural-graphics-primitives/n
 * Masks: nerfstudio's ``mask_path`` (non-zero = train on the pixel); instant-ngp's
   ``dynamic_mask_<stem>.png`` beside an image (non-zero = leave the pixel out).
 * instant-ngp's ``aabb_scale``: it models space out to ``aabb_scale`` times its unit cube, the cube being
-  ``[0, 1]³`` after its ``scale``/``offset`` (or ``aabb``) mapping; see :func:`scene_box_from_aabb_scale`.
+  ``[0, 1]³`` after its ``scale``/``offset`` (or ``aabb``) mapping; 1 becomes a bounded ``scene_box``, more
+  is left to training (see :func:`scene_box_from_aabb_scale`).
 """
 
 from __future__ import annotations
@@ -347,29 +348,29 @@ def _unit_cube(meta: dict, where: Path) -> np.ndarray:
     return np.stack([(0.0 - offset) / scale, (1.0 - offset) / scale])
 
 
-def scene_box_from_aabb_scale(meta: dict, centers: np.ndarray, where: Path) -> tuple[str, np.ndarray] | None:
-    """The ``scene_box`` instant-ngp's ``aabb_scale`` stands for, or None when the file has none.
+def scene_box_from_aabb_scale(meta: dict, where: Path) -> tuple[str, np.ndarray] | None:
+    """The ``scene_box`` instant-ngp's ``aabb_scale`` stands for, or None.
 
-    instant-ngp models its unit cube (:func:`_unit_cube`) enlarged ``aabb_scale`` times about its centre;
-    its documentation: 1 when the scene fits in the cube, larger "for natural scenes where there is a
-    background". So 1 is a ``bounded`` box, the cube itself; more is ``unbounded``, the cube (grown to hold
-    the cameras, as lift3d's own foreground boxes do) being the finely modelled foreground.
+    instant-ngp models its unit cube (:func:`_unit_cube`) enlarged ``aabb_scale`` times about its centre; its
+    documentation: 1 when the scene fits in the cube, larger "for natural scenes where there is a
+    background". Only 1 says where the scene is: a ``bounded`` box, the cube itself (training warns when the
+    content reaches past it). A larger value says only that something lies beyond the cube (``colmap2nerf``
+    writes 32 by default, whatever the scene): no box, lift3d sizes the space from the content.
 
     Examples
     --------
-    >>> kind, box = scene_box_from_aabb_scale({"aabb_scale": 1}, np.zeros((1, 3)), Path("t.json"))
+    >>> kind, box = scene_box_from_aabb_scale({"aabb_scale": 1}, Path("t.json"))
     >>> kind, np.round(box, 3).tolist()
     ('bounded', [[-1.515, -1.515, -1.515], [1.515, 1.515, 1.515]])
+    >>> scene_box_from_aabb_scale({"aabb_scale": 32}, Path("t.json")) is None
+    True
     """
     if "aabb_scale" not in meta:
         return None
     aabb_scale = _number(meta["aabb_scale"], where, "aabb_scale")
     if aabb_scale < 1:
         raise InputError(where, f"aabb_scale: must be >= 1 (got {aabb_scale:g})")
-    cube = _unit_cube(meta, where)
-    if aabb_scale == 1:
-        return "bounded", cube
-    return "unbounded", np.stack([np.minimum(cube[0], centers.min(0)), np.maximum(cube[1], centers.max(0))])
+    return ("bounded", _unit_cube(meta, where)) if aabb_scale == 1 else None
 
 
 def _applied(meta: dict, where: Path) -> dict:
@@ -516,12 +517,13 @@ def convert(
     preds.check(stems)
     cats = preds.resolve_categories(stems, progress=opts.progress)
     splits = file_splits(meta, listed, stems, tpath) or split_every(stems, test_every)
-    box = scene_box_from_aabb_scale(meta, np.stack([fr.c2w_opencv[:3, 3] for fr in frames]), tpath)
+    box = scene_box_from_aabb_scale(meta, tpath)
     if box is not None:
-        reach = "its unit cube only" if box[0] == "bounded" else f"{meta['aabb_scale']}x its unit cube"
         corners = " .. ".join("[" + ", ".join(f"{v:.3g}" for v in corner) + "]" for corner in box[1])
-        note(f"aabb_scale {meta['aabb_scale']}: instant-ngp models {reach}, so the scene is {box[0]}: "
-             f"scene_box {corners}")
+        note(f"aabb_scale 1: instant-ngp models its unit cube only, so the scene is bounded: scene_box {corners}")
+    elif "aabb_scale" in meta:
+        note(f"aabb_scale {meta['aabb_scale']}: instant-ngp models space beyond its unit cube; no scene_box is "
+             "written, training sizes the space from the content (depth maps or triangulated points)")
     extra = {"source": "nerfstudio", "file": str(tpath), **_applied(meta, tpath)}
     return write_scene(out, frames, cats, camera_model=camera_model, splits=splits, scene_box=box, options=opts,
                        extra_meta={"converted_from": extra})
