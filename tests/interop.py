@@ -9,8 +9,10 @@ inside the test, before using it::
     tool = require_tool("pcl_pcd2ply")
 
 A missing client skips the test on a developer's machine, with a message naming what to install. Under CI
-(``CI`` set to anything but ``""``, ``0``, ``false`` or ``no``) it fails with the same message: a skip there
-would only hide that CI does not exercise the file formats against their real readers.
+(``CI`` set to anything but ``""``, ``0``, ``false`` or ``no``, as ``.ci/run`` runs) it fails with the same
+message: ``.ci/run`` installs every Debian package named in :data:`DEBIAN_PACKAGES` (and ``make test`` the
+Python extras), so a skip there would only hide a broken install. ``tests/test_interop.py`` checks that the
+two lists agree.
 """
 
 from __future__ import annotations
@@ -23,12 +25,12 @@ from typing import NoReturn
 
 import pytest
 
-#: Debian package of each client program the interop tests use.
+#: Debian package of each client program the interop tests use (``.ci/run`` installs them when missing).
 DEBIAN_PACKAGES = {
     "pcl_pcd2ply": "pcl-tools",
     "CloudCompare": "cloudcompare",
     "chromium": "chromium",
-    "xvfb-run": "xvfb",  # a display for test_plot.py's --show test
+    "xvfb-run": "xvfb",  # the display of test_plot.py's --show test (``.ci/run`` runs the suite under it)
 }
 #: Other names the same program has elsewhere (Ubuntu's chromium-browser, a lower-case CloudCompare).
 OTHER_NAMES = {"CloudCompare": ("cloudcompare",), "chromium": ("chromium-browser",)}
@@ -43,7 +45,7 @@ def missing(what: str, install: str) -> NoReturn:
     """Skip (developer's machine) or fail (CI) the calling test: ``what`` is missing, ``install`` fixes it."""
     __tracebackhide__ = True  # report the skip at the test's line, not here
     if in_ci():
-        pytest.fail(f"{what} is missing in CI ({install})", pytrace=False)
+        pytest.fail(f"{what} is missing in CI ({install}; .ci/run installs it)", pytrace=False)
     pytest.skip(f"{what} is missing ({install})")
 
 

@@ -1,12 +1,16 @@
-"""The interop clients (tests/interop.py): a missing one skips on a developer's machine and fails in CI."""
+"""The interop clients (tests/interop.py): a missing one skips on a developer's machine and fails in CI, and
+.ci/run installs every Debian package the helper names."""
 
 from __future__ import annotations
 
+import re
 from pathlib import Path
 
 import pytest
 
 import interop
+
+ROOT = Path(__file__).resolve().parents[1]
 
 
 @pytest.mark.parametrize("value, ci", [("", False), ("0", False), ("false", False), ("No", False),
@@ -42,3 +46,10 @@ def test_present_client_is_returned(monkeypatch):
     assert Path(interop.require_tool("sh")).name == "sh"
     assert interop.require_module("json", pip="-").dumps([]) == "[]"
 
+
+def test_ci_installs_every_debian_package_the_tests_name():
+    script = (ROOT / ".ci" / "run").read_text()
+    clients = dict(item.split(":") for item in re.search(r'^CLIENTS="([^"]*)"', script, re.M).group(1).split())
+    for program, package in interop.DEBIAN_PACKAGES.items():
+        assert clients.get(program) == package, f".ci/run does not install {package} (for {program})"
+    assert "xvfb-run -a make test" in script  # the display of test_show_opens_a_window

@@ -1,7 +1,8 @@
 """lift3d plot: the palette, 3D pictures (pixel colours at known projections), run and benchmark charts, CLI.
 
 Everything renders off-screen (VTK without a display, matplotlib Agg); windows only in the --show smoke test,
-which needs a display (``tests/interop.py``: skipped without one, failed under CI).
+which needs a display (``tests/interop.py``: skipped without one, failed under CI, where ``.ci/run`` runs the
+suite under xvfb-run).
 """
 
 from __future__ import annotations
