@@ -12,7 +12,7 @@ A missing client skips the test on a developer's machine, with a message naming 
 (``CI`` set to anything but ``""``, ``0``, ``false`` or ``no``, as ``.ci/run`` runs) it fails with the same
 message: ``.ci/run`` installs every Debian package named in :data:`DEBIAN_PACKAGES` (and ``make test`` the
 Python extras), so a skip there would only hide a broken install. ``tests/test_interop.py`` checks that the
-two lists agree.
+two lists agree. DEVELOPERS.md ("CI and the interop tests") says how to run these tests locally.
 """
 
 from __future__ import annotations
