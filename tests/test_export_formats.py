@@ -2,14 +2,14 @@
 
 A hand-made room (floor, a wall, a table with a cup on it, a chair beside the table, a lamp hanging above
 the obstacle band) goes through the registered writers; the files are read back with rosbags, pyoctomap,
-Nav2's own occupancy rule, PCL's ``pcl_pcd2ply`` and CloudCompare (the last two skipped when not
-installed). One tiny trained run checks ``lift3d export --format ...`` end to end.
+Nav2's own occupancy rule, PCL's ``pcl_pcd2ply`` and CloudCompare (clients from ``tests/interop.py``: a
+missing one skips the test, or fails it under CI). One tiny trained run checks ``lift3d export --format ...``
+end to end.
 """
 
 from __future__ import annotations
 
 import json
-import shutil
 import subprocess
 import sys
 from pathlib import Path
@@ -24,6 +24,7 @@ from lift3d.errors import InputError
 from lift3d.export.instances import instance_records
 from lift3d.export.scene_graph import build_scene_graph
 from lift3d.export.writers import WRITERS, ExportContext, ExportOptions, ExportWriter, check_formats, get_writer
+from interop import require_module, require_tool
 
 CLASSES = [{"id": 1, "name": "floor-wood", "isthing": False, "color": [80, 60, 40]},
            {"id": 2, "name": "wall", "isthing": False, "color": [120, 120, 120]},
@@ -122,9 +123,7 @@ def test_missing_extra_is_a_one_line_error_naming_pip_install(fmt, extra, module
 
 
 # ------------------------------------------------------------------------------------------ PCL / CloudCompare
-def test_pcd_reads_back_exactly_through_pcl_pcd2ply(ctx, tmp_path):
-    from plyfile import PlyData
-
+def test_pcd_header_and_our_reader(ctx):
     from lift3d.export.writers.pcd import read_pcd
 
     for ascii_ in (False, True):
@@ -135,9 +134,15 @@ def test_pcd_reads_back_exactly_through_pcl_pcd2ply(ctx, tmp_path):
         ours = read_pcd(ctx.out / "points.pcd")
         np.testing.assert_array_equal(ours["rgb"], ctx.points.rgb)
         assert (ours["rgba"] >> 24 == 255).all()
-        tool = shutil.which("pcl_pcd2ply")
-        if tool is None:
-            continue
+
+
+def test_pcd_reads_back_exactly_through_pcl_pcd2ply(ctx, tmp_path):
+    from plyfile import PlyData
+
+    tool = require_tool("pcl_pcd2ply")
+    for ascii_ in (False, True):
+        ctx.options.pcd_ascii = ascii_
+        assert get_writer("pcd").write(ctx) == ["points.pcd"]
         out = tmp_path / f"pcl_{ascii_}.ply"
         subprocess.run([tool, str(ctx.out / "points.pcd"), str(out)], check=True, capture_output=True)
         v = PlyData.read(str(out))["vertex"].data
@@ -148,11 +153,9 @@ def test_pcd_reads_back_exactly_through_pcl_pcd2ply(ctx, tmp_path):
         np.testing.assert_array_equal(v["label"], p.semantic)
         np.testing.assert_array_equal(v["instance"], p.instance)
         np.testing.assert_array_equal(v["confidence"], p.confidence)
-    if shutil.which("pcl_pcd2ply") is None:
-        pytest.skip("pcl_pcd2ply not installed (Debian: apt-get install pcl-tools); own reader checked")
 
 
-def test_cloudcompare_flavour_keeps_the_labels(ctx, tmp_path):
+def test_cloudcompare_flavour_names_the_scalar_fields(ctx):
     from plyfile import PlyData
 
     assert get_writer("ply-cloudcompare").write(ctx) == ["points.cloudcompare.ply"]
@@ -161,9 +164,13 @@ def test_cloudcompare_flavour_keeps_the_labels(ctx, tmp_path):
     assert {"scalar_semantic", "scalar_instance", "scalar_confidence"} <= set(names)
     mine = read_labelled_ply(path)
     np.testing.assert_array_equal(mine["semantic"], ctx.points.semantic)
-    cc = shutil.which("CloudCompare") or shutil.which("cloudcompare")
-    if cc is None:
-        pytest.skip("CloudCompare not installed (Debian: apt-get install cloudcompare); own reader checked")
+
+
+def test_cloudcompare_keeps_the_labels(ctx, tmp_path):
+    cc = require_tool("CloudCompare")
+    get_writer("ply-cloudcompare").write(ctx)
+    path = ctx.out / "points.cloudcompare.ply"
+    mine = read_labelled_ply(path)
     # Load it in CloudCompare and save it back: the scalar fields survive (plain names would be dropped).
     back = tmp_path / "cc_back.ply"
     subprocess.run([cc, "-SILENT", "-AUTO_SAVE", "OFF", "-O", str(path), "-C_EXPORT_FMT", "PLY",
@@ -189,7 +196,7 @@ def read_bag(folder: Path) -> dict:
 
 
 def test_ros2bag_pointcloud2_equals_the_ply_and_markers_are_the_boxes(ctx):
-    pytest.importorskip("rosbags")
+    require_module("rosbags", pip="pip install 'lift3d[ros]'")
     from scipy.spatial.transform import Rotation
 
     from lift3d.export.api import OrientedBox3D
@@ -247,7 +254,7 @@ def _leaf_voxels(tree, res: float) -> dict[tuple, object]:
 
 
 def test_octomap_reads_back_occupied_voxels_and_class_colours(ctx):
-    pyoctomap = pytest.importorskip("pyoctomap")
+    pyoctomap = require_module("pyoctomap", pip="pip install 'lift3d[octomap]'")
     from lift3d.export.writers.octomap import occupied_voxels
 
     ctx.options.map_resolution = 0.1
@@ -360,8 +367,8 @@ def test_scene_graph_relations_from_geometry(tmp_path, up):
 
 # ------------------------------------------------------------------------------------------ end to end
 def test_cli_writes_every_format_from_a_trained_run(tiny_run, tmp_path, capsys):
-    pytest.importorskip("rosbags")
-    pytest.importorskip("pyoctomap")
+    require_module("rosbags", pip="pip install 'lift3d[ros]'")
+    require_module("pyoctomap", pip="pip install 'lift3d[octomap]'")
     from lift3d.cli.main import main
     from lift3d.export.writers.ros2bag import read_pointcloud2
 

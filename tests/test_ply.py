@@ -1,4 +1,5 @@
-"""Labelled PLY (docs/export.md): round trips through our reader, Open3D's tensor API and PyVista."""
+"""Labelled PLY (docs/export.md): round trips through our reader, Open3D's tensor API and PyVista (clients from
+``tests/interop.py``)."""
 
 from __future__ import annotations
 
@@ -9,6 +10,7 @@ import pytest
 
 from lift3d.data.ply import read_labelled_ply, write_labelled_ply
 from lift3d.errors import InputError
+from interop import require_module
 
 INT32_MIN, INT32_MAX = -(2**31), 2**31 - 1
 
@@ -71,7 +73,7 @@ def test_labelled_mesh_round_trip(tmp_path: Path, n_faces: int) -> None:
 
 
 def test_open3d_tensor_reader_keeps_int32_attributes(tmp_path: Path) -> None:
-    o3d = pytest.importorskip("open3d")
+    o3d = require_module("open3d", pip="pip install open3d")
     data = _labelled_points()
     path = tmp_path / "points.ply"
     _write(path, data)
@@ -91,7 +93,7 @@ def test_open3d_tensor_reader_keeps_int32_attributes(tmp_path: Path) -> None:
 
 
 def test_open3d_reads_the_mesh_faces(tmp_path: Path) -> None:
-    o3d = pytest.importorskip("open3d")
+    o3d = require_module("open3d", pip="pip install open3d")
     data = _labelled_points(12)
     faces = np.array([[0, 1, 2], [2, 3, 4], [4, 5, 11]])
     path = tmp_path / "mesh.ply"
@@ -102,7 +104,7 @@ def test_open3d_reads_the_mesh_faces(tmp_path: Path) -> None:
 
 
 def test_pyvista_reads_points_mesh_and_colours(tmp_path: Path) -> None:
-    pv = pytest.importorskip("pyvista")
+    pv = require_module("pyvista", pip="pip install pyvista")
     data = _labelled_points(12)
     faces = np.array([[0, 1, 2], [2, 3, 4]])
     path = tmp_path / "mesh.ply"
