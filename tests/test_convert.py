@@ -368,11 +368,13 @@ def test_colmap_points3d_are_kept_as_sparse_points(tmp_path, fmt, model):
     assert np.all(sp.obs_sigma > 0) and np.all(np.bincount(sp.obs_point) == sp.track_length)
 
 
-def test_colmap_points3d_follow_a_downscale(tmp_path):
+@pytest.mark.parametrize("n", [2, 5])  # 48x36 is not a multiple of 5: the last columns and rows are dropped
+def test_colmap_points3d_follow_a_downscale(tmp_path, n):
     colmap_capture(tmp_path / "ws", "txt", points=POINTS)
     scene = colmap_convert.convert(tmp_path / "ws", tmp_path / "out", predictions=tmp_path / "ws" / "pred",
                                    categories=[Category(c["id"], c["name"], bool(c["isthing"])) for c in CATEGORIES],
-                                   options=WriteOptions(progress=False, downscale=2))
+                                   options=WriteOptions(progress=False, downscale=n))
+    assert scene.image(0).shape[:2] == (H // n, W // n)
     sp = scene.sparse_points()
     for k in range(len(scene)):
         obs = sp.frame_observations(k)
@@ -585,6 +587,16 @@ def test_scannet_folder(tmp_path):
     np.testing.assert_allclose(uv[0], [40 * 0.1 + 23.5, 40 * -0.2 + 18.0], atol=1e-6)
 
 
+def block_mode_reference(labels, n):
+    """Most frequent value of each n x n block (smallest on ties), one block at a time."""
+    out = np.zeros((labels.shape[0] // n, labels.shape[1] // n), labels.dtype)
+    for i in range(out.shape[0]):
+        for j in range(out.shape[1]):
+            values, counts = np.unique(labels[i * n:(i + 1) * n, j * n:(j + 1) * n], return_counts=True)
+            out[i, j] = values[np.argmax(counts)]  # np.unique sorts: the first maximum is the smallest value
+    return out
+
+
 def test_downscale_keeps_rays_and_ids(tmp_path):
     scannet_folder(tmp_path / "sn", n=2)
     full = scannet.convert(tmp_path / "sn", tmp_path / "full", predictions=tmp_path / "sn" / "pred", options=QUIET)
@@ -593,8 +605,107 @@ def test_downscale_keeps_rays_and_ids(tmp_path):
     assert half.image(0).shape == (H // 2, W // 2, 3)
     x_world = np.array([[0.3, 0.1, 0.2]])
     np.testing.assert_allclose(half.cameras.project(0, x_world)[0], full.cameras.project(0, x_world)[0] / 2)
-    np.testing.assert_array_equal(half.pseudo_labels(0).semantic, full.pseudo_labels(0).semantic[::2, ::2])
+    for f in range(2):
+        np.testing.assert_array_equal(half.pseudo_labels(f).segment,
+                                      block_mode_reference(full.pseudo_labels(f).segment, 2))
     assert half.depth(0).shape == (H // 2, W // 2)
+
+
+# --------------------------------------------------------------------------------------------- --downscale
+def write_frames(tmp_path, images, depths_mm, panoptics, confidences=None, masks=None,
+                 intrinsics=(30.0, 30.0, 24.0, 18.0)):
+    """write_scene's own input (the path every source takes): images, uint16 depth PNGs and label loaders."""
+    from lift3d.convert import FrameInput, PanopticFrame
+    from lift3d.data.scene import Segment
+
+    src = tmp_path / "src"
+    src.mkdir(exist_ok=True)
+    frames = []
+    for k, (img, depth, pan) in enumerate(zip(images, depths_mm, panoptics)):
+        cv2.imwrite(str(src / f"f{k}.png"), cv2.cvtColor(img, cv2.COLOR_RGB2BGR))
+        cv2.imwrite(str(src / f"d{k}.png"), depth.astype(np.uint16))
+        mask_path = None
+        if masks is not None:
+            mask_path = src / f"m{k}.png"
+            cv2.imwrite(str(mask_path), masks[k].astype(np.uint8) * 255)
+        conf = None if confidences is None else confidences[k]
+        segments = [Segment(int(i), 1 + int(i) % 2, 1.0) for i in np.unique(pan) if i != 0]
+        frames.append(FrameInput(
+            name=f"f{k}", image_path=src / f"f{k}.png", c2w_opencv=np.eye(4), pose_source=src,
+            intrinsics=intrinsics, intrinsics_size=None, depth_path=src / f"d{k}.png", mask_path=mask_path,
+            labels=lambda pan=pan, conf=conf, segments=segments: PanopticFrame(pan.copy(), segments, conf, src)))
+    return frames
+
+
+TWO_CLASSES = [Category(1, "wall", False), Category(2, "chair", True)]
+
+
+@pytest.mark.parametrize("n", [2, 4, 5])
+def test_downscaled_depth_is_the_value_at_the_block_centre(tmp_path, n):
+    from lift3d.convert import write_scene
+
+    h, w = 36, 48  # not a multiple of 5: the last columns and rows are dropped, nothing is shifted
+    # A linear depth ramp sampled at pixel centres (c + 0.5, r + 0.5), in mm; whole numbers for any block.
+    ramp = lambda x, y: 1000.0 + 10.0 * x + 4.0 * y  # noqa: E731
+    cols, rows = np.meshgrid(np.arange(w) + 0.5, np.arange(h) + 0.5)
+    depth = ramp(cols, rows)
+    holes = depth.copy()
+    holes[:n, :n] = 0                       # a block without depth stays without depth
+    holes[n:2 * n, n:2 * n:2] = 0           # a block with holes: the median of what is left
+    frames = write_frames(tmp_path, [np.zeros((h, w, 3), np.uint8)] * 2, [depth, holes],
+                          [np.ones((h, w), np.int64)] * 2)
+    full = write_scene(tmp_path / "full", frames, TWO_CLASSES, options=QUIET)
+    small = write_scene(tmp_path / "small", frames, TWO_CLASSES, options=WriteOptions(downscale=n, progress=False))
+    nh, nw = h // n, w // n
+    assert small.image(0).shape == (nh, nw, 3)
+    col, row = (a.ravel() for a in np.meshgrid(np.arange(nw), np.arange(nh)))
+    uv = np.stack([col + 0.5, row + 0.5], -1)  # output pixel centres
+    # The ray through an output pixel centre is the full-size ray through its block's centre (normalized_coords
+    # takes pixel indices and adds the 0.5 itself) ...
+    np.testing.assert_allclose(small.cameras.normalized_coords(0, col, row),
+                               full.cameras.normalized_coords(0, n * uv[:, 0] - 0.5, n * uv[:, 1] - 0.5), atol=1e-12)
+    # ... and the depth there is the ramp's value at that centre (1 mm units, so exact).
+    expected = ramp(n * uv[:, 0], n * uv[:, 1]).reshape(nh, nw) / 1000.0
+    np.testing.assert_allclose(small.depth(0), expected, atol=1e-6)
+    got = small.depth(1)
+    assert got[0, 0] == 0.0
+    block = holes[n:2 * n, n:2 * n]
+    assert got[1, 1] == pytest.approx(np.median(block[block > 0]) / 1000.0, abs=1e-6)
+    np.testing.assert_allclose(got[2:, 2:], expected[2:, 2:], atol=1e-6)
+
+
+def test_downscaled_label_edges_stay_on_the_image_edges(tmp_path):
+    from lift3d.convert import write_scene
+
+    h, w, n = 32, 48, 4
+    cols = np.arange(w)[None].repeat(h, 0)
+    rows = np.arange(h)[:, None].repeat(w, 1)
+    # A vertical edge 1 px right of a block boundary (top half) and 1 px left of one (bottom half), and a
+    # horizontal one 1 px below a boundary; labels have their edges exactly where the image has its own.
+    right = np.where(rows < 16, cols >= 17, cols >= 23) | (rows >= 29)
+    image = np.where(right[..., None], np.uint8(200), np.uint8(20)).repeat(3, -1)
+    pan = np.where(right, 41601, 7).astype(np.int64)       # ids past 8 bits stay exact
+    confidence = np.where(right, 0.9, 0.1).astype(np.float32)
+    ignore = np.zeros((h, w), bool)
+    ignore[:, :2] = True        # whole-block halves: a tie, ignored
+    ignore[:, 4:7] = True       # three of four columns: ignored
+    frames = write_frames(tmp_path, [image], [np.full((h, w), 1500)], [pan], [confidence], [ignore])
+    small = write_scene(tmp_path / "small", frames, TWO_CLASSES, options=WriteOptions(downscale=n, progress=False))
+    img = small.image(0)[..., 0].astype(float)
+    labels = small.pseudo_labels(0)
+    # Each output label is the one whose colour the block's mean colour is nearer to.
+    nearer_right = np.abs(img - 200) < np.abs(img - 20)
+    np.testing.assert_array_equal(labels.segment, np.where(nearer_right, 41601, 7))
+    assert labels.segment[0, 4] == 41601 and labels.segment[-1, 0] == 41601  # sampling top-left gives 7 here
+    # Confidence is the block mean; it is multiplied by the segment's score (1 here).
+    np.testing.assert_allclose(labels.confidence, block_mean_reference(confidence, n), atol=1e-4)
+    # mask_path: 0 = ignore
+    assert not small.mask(0)[:, 0].any() and not small.mask(0)[:, 1].any() and small.mask(0)[:, 2:].all()
+
+
+def block_mean_reference(arr, n):
+    h, w = arr.shape[0] // n * n, arr.shape[1] // n * n
+    return arr[:h, :w].reshape(h // n, n, w // n, n).mean(axis=(1, 3))
 
 
 # --------------------------------------------------------------------------------------------- bad input

@@ -73,7 +73,8 @@ def add_parser(subparsers: argparse._SubParsersAction, verb: str) -> argparse.Ar
                    help="colmap: do not keep points3D.txt|bin as the scene's sparse points (kept by default "
                         "as sparse/points3D.ply + sparse/observations.npz; see docs/scene-format.md)")
     p.add_argument("--downscale", type=int, default=1, metavar="N",
-                   help="shrink images, labels and depth by N (intrinsics follow) (default: %(default)s)")
+                   help="shrink images, labels and depth by N: each output pixel is one NxN block (mean colour, "
+                        "majority label, median valid depth; intrinsics divided by N) (default: %(default)s)")
     p.add_argument("--image-format", choices=["png", "jpg"], default="png",
                    help="format of the written images (default: %(default)s, lossless)")
     p.add_argument("--overwrite", action="store_true",

@@ -29,6 +29,7 @@ from typing import Callable, Iterable, Sequence
 import cv2
 import numpy as np
 
+from lift3d.convert import downscale
 from lift3d.data.cameras import is_rigid, opencv_to_opengl
 from lift3d.data.images import read_depth, read_label_map, read_rgb, write_label_map
 from lift3d.data.scene import Category, Scene, SceneWriter, Segment, load_scene
@@ -328,6 +329,7 @@ def write_scene(
     writer = SceneWriter(out, list(categories), image_ext=opts.image_ext, depth_unit_scale_factor=opts.depth_scale,
                          camera_model=camera_model, extra_meta=extra_meta)
     resized_labels = 0
+    cropped: tuple[int, int, int] | None = None
     for fr in progress_bar(frames, desc="convert frames", unit="frame", disable=not opts.progress):
         image = read_rgb(fr.image_path)
         h, w = image.shape[:2]
@@ -357,19 +359,25 @@ def write_scene(
             mask = _resize(mask.astype(np.uint8), (w, h), cv2.INTER_NEAREST) > 0
 
         if opts.downscale > 1:
-            nw, nh = max(1, round(w / opts.downscale)), max(1, round(h / opts.downscale))
-            sx, sy = nw / w, nh / h
-            image = cv2.resize(image, (nw, nh), interpolation=cv2.INTER_AREA)
-            fx, fy, cx, cy = fx * sx, fy * sy, cx * sx, cy * sy
+            # Each output pixel is one N x N block of every map, so labels and depth stay on the image's
+            # pixel centres (lift3d.convert.downscale says how each kind of map is reduced).
+            n = opts.downscale
+            if w < n or h < n:
+                raise InputError(fr.image_path, f"image is {w}x{h}, smaller than one --downscale {n} block")
+            if (w % n or h % n) and not cropped:
+                cropped = (w % n, h % n, n)
+            image = downscale.block_mean(image, n)
+            fx, fy, cx, cy = fx / n, fy / n, cx / n, cy / n
             for lab in (labels, gt):
                 if lab is not None:
-                    lab.panoptic = _resize(lab.panoptic, (nw, nh), cv2.INTER_NEAREST)
+                    lab.panoptic = downscale.block_majority(lab.panoptic, n)
                     if lab.confidence is not None:
-                        lab.confidence = _resize(lab.confidence.astype(np.float32), (nw, nh), cv2.INTER_AREA)
+                        lab.confidence = downscale.block_mean(lab.confidence.astype(np.float32), n)
             if depth is not None:
-                depth = _resize(depth, (nw, nh), cv2.INTER_NEAREST)
+                depth = downscale.block_median_depth(depth, n)
             if mask is not None:
-                mask = _resize(mask.astype(np.uint8), (nw, nh), cv2.INTER_NEAREST) > 0
+                # The majority of the block decides; a tie goes to the smaller value, 0 = ignore.
+                mask = downscale.block_majority((~mask).astype(np.uint8), n) == 0
 
         c2w = opencv_to_opengl(fr.c2w_opencv)
         if not is_rigid(c2w, atol=1e-3):
@@ -391,6 +399,9 @@ def write_scene(
             writer.frames[-1]["mask_path"] = rel
     if resized_labels:
         note(f"{resized_labels} label maps were not at their image's size and were resized (nearest neighbour)")
+    if cropped:
+        note(f"--downscale {cropped[2]}: images lose their last {cropped[0]} column(s) and {cropped[1]} row(s) so "
+             "that every output pixel is a whole block")
 
     if splits:
         lists = {k: [file_paths[n] for n in v if n in file_paths] for k, v in splits.items()}
