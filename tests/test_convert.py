@@ -587,6 +587,23 @@ def test_scannet_folder(tmp_path):
     np.testing.assert_allclose(uv[0], [40 * 0.1 + 23.5, 40 * -0.2 + 18.0], atol=1e-6)
 
 
+def test_scannet_without_predictions_is_a_scene_to_label(tmp_path):
+    from lift3d.train.trainer import train
+
+    stems, _ = scannet_folder(tmp_path / "sn")
+    scene = scannet.convert(tmp_path / "sn", tmp_path / "out", predictions=None, options=QUIET)
+    assert not scene.has_pseudo_labels and scene.categories == [] and scene.has_depth
+    assert [f.name for f in scene.frames] == stems
+    assert not (tmp_path / "out" / "panoptic.json").exists() and not (tmp_path / "out" / "panoptic").exists()
+    with pytest.raises(InputError) as err:
+        train(tmp_path / "out", preset="fast", output_dir=tmp_path / "runs", progress=False, print_summary=False)
+    assert err.value.where == str(tmp_path / "out") and "no pseudo-labels: run lift3d label" in err.value.problem
+    assert not (tmp_path / "runs").exists()  # refused before a run folder is made
+    with pytest.raises(InputError, match="--categories"):
+        scannet.convert(tmp_path / "sn", tmp_path / "out2", predictions=None, options=QUIET,
+                        categories=[Category(1, "wall", False)])
+
+
 def block_mode_reference(labels, n):
     """Most frequent value of each n x n block (smallest on ties), one block at a time."""
     out = np.zeros((labels.shape[0] // n, labels.shape[1] // n), labels.dtype)

@@ -40,8 +40,9 @@ def add_parser(subparsers: argparse._SubParsersAction, verb: str) -> argparse.Ar
                         "SRC/images, else an images/ folder beside the model folder or up to three levels "
                         "above it)")
     p.add_argument("--predictions", type=Path, metavar="DIR",
-                   help="colmap, scannet (required): 2D panoptic predictions per image, matched by file "
-                        "stem: COCO panoptic (panoptic.json + PNGs) or semantic/ + instance/ PNG folders")
+                   help="colmap (required), scannet: 2D panoptic predictions per image, matched by file "
+                        "stem: COCO panoptic (panoptic.json + PNGs) or semantic/ + instance/ PNG folders; "
+                        "without them scannet writes a scene without pseudo-labels, for lift3d label")
     p.add_argument("--categories", type=Path, metavar="FILE",
                    help="JSON list of COCO panoptic categories {id, name, isthing, color} (or a COCO panoptic "
                         "JSON holding one); needed when the predictions carry none, unless --things is given")
@@ -114,8 +115,6 @@ def run(args: argparse.Namespace) -> int:
         # here, not at module level: keeps `lift3d --help` cheap
         from lift3d.convert import scannet
 
-        if args.predictions is None:
-            raise InputError("--predictions", "required with --from scannet (2D panoptic predictions per image)")
         scene = scannet.convert(args.src, args.out, predictions=args.predictions, categories=categories,
                                 things=things, test_every=args.test_every, use_depth=not args.no_depth,
                                 intrinsics_size=scannet.parse_size(args.intrinsics_size), options=options)

@@ -94,8 +94,9 @@ class FrameInput:
         size with the same aspect ratio, the intrinsics are scaled to it.
     distortion : dict
         Distortion coefficients by name (``k1 k2 p1 p2 k3`` or fisheye ``k1 k2 k3 k4``); empty for pinhole.
-    labels : callable
-        Returns the frame's :class:`PanopticFrame` pseudo-labels (called once, when the frame is written).
+    labels : callable or None
+        Returns the frame's :class:`PanopticFrame` pseudo-labels (called once, when the frame is written);
+        None writes the frame without pseudo-labels, for ``lift3d label`` to add.
     gt : callable or None
         Returns ground-truth labels with scene-consistent segment ids, or None.
     depth_path : Path or None
@@ -110,7 +111,7 @@ class FrameInput:
     pose_source: Path
     intrinsics: tuple[float, float, float, float]
     intrinsics_size: tuple[int, int] | None
-    labels: Callable[[], PanopticFrame]
+    labels: Callable[[], PanopticFrame] | None
     distortion: dict[str, float] = field(default_factory=dict)
     gt: Callable[[], PanopticFrame] | None = None
     depth_path: Path | None = None
@@ -289,7 +290,8 @@ def write_scene(
     frames : sequence of FrameInput
         The frames, in output order.
     categories : sequence of Category
-        Label vocabulary (every category id the labels use must be in it).
+        Label vocabulary (every category id the labels use must be in it); may be empty when no frame has
+        labels.
     camera_model : str
         ``PINHOLE``, ``OPENCV`` or ``OPENCV_FISHEYE`` (one model for the whole scene).
     splits : dict, optional
@@ -335,8 +337,9 @@ def write_scene(
         h, w = image.shape[:2]
         fx, fy, cx, cy = _scaled_intrinsics(fr, w, h)
 
-        labels = fr.labels()
-        _check_categories(labels, cat_ids)
+        labels = fr.labels() if fr.labels is not None else None
+        if labels is not None:
+            _check_categories(labels, cat_ids)
         gt = fr.gt() if fr.gt is not None else None
         if gt is not None:
             _check_categories(gt, cat_ids)
@@ -351,7 +354,7 @@ def write_scene(
                 lab.panoptic = _resize(lab.panoptic, (w, h), cv2.INTER_NEAREST)
                 if lab.confidence is not None:
                     lab.confidence = _resize(lab.confidence.astype(np.float32), (w, h), cv2.INTER_LINEAR)
-        if labels.confidence is not None and labels.confidence.shape != (h, w):
+        if labels is not None and labels.confidence is not None and labels.confidence.shape != (h, w):
             labels.confidence = _resize(labels.confidence.astype(np.float32), (w, h), cv2.INTER_LINEAR)
         if depth is not None and depth.shape != (h, w):
             depth = _resize(depth, (w, h), cv2.INTER_NEAREST)
@@ -383,11 +386,12 @@ def write_scene(
         if not is_rigid(c2w, atol=1e-3):
             raise InputError(fr.pose_source, f"pose of {fr.name!r} is not a rigid transform")
         confidence = None
-        if labels.confidence is not None:
+        if labels is not None and labels.confidence is not None:
             confidence = np.clip(np.nan_to_num(labels.confidence.astype(np.float32), nan=0.0), 0.0, 1.0)
         file_paths[fr.name] = writer.add_frame(
             fr.name, image, c2w, (fx, fy, cx, cy),
-            panoptic=labels.panoptic, segments=labels.segments, confidence=confidence,
+            panoptic=None if labels is None else labels.panoptic, segments=() if labels is None else labels.segments,
+            confidence=confidence,
             gt_panoptic=None if gt is None else gt.panoptic, gt_segments=() if gt is None else gt.segments,
             depth=depth, distortion=fr.distortion or None,
         )
@@ -415,7 +419,8 @@ def write_scene(
     scene = load_scene(out)
     # Decode one frame completely: load_scene checks paths and JSON, this checks pixels and ids agree.
     scene.image(0)
-    scene.pseudo_labels(0)
+    if scene.has_pseudo_labels:
+        scene.pseudo_labels(0)
     if scene.frames[0].gt_panoptic_path is not None:
         scene.gt_labels(0)
     return scene
@@ -431,8 +436,11 @@ def _check_categories(labels: PanopticFrame, cat_ids: set[int]) -> None:
 def summary(scene: Scene) -> str:
     """One line describing a converted scene (printed by the CLI)."""
     n_things = len(scene.thing_ids)
-    parts = [f"{len(scene)} frames",
-             f"{len(scene.categories)} categories ({n_things} thing{'' if n_things == 1 else 's'})"]
+    parts = [f"{len(scene)} frames"]
+    if scene.has_pseudo_labels:
+        parts.append(f"{len(scene.categories)} categories ({n_things} thing{'' if n_things == 1 else 's'})")
+    else:
+        parts.append("no pseudo-labels yet (lift3d label adds them; training needs them)")
     parts.append("splits " + ", ".join(f"{k} {len(scene.splits[k])}" for k in ("train", "val", "test")
                                        if k in scene.splits))
     if scene.has_gt:
