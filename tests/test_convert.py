@@ -604,6 +604,38 @@ def test_scannet_without_predictions_is_a_scene_to_label(tmp_path):
                         categories=[Category(1, "wall", False)])
 
 
+def test_depth_as_gt_is_for_evaluation_only(tmp_path, monkeypatch):
+    """--depth-as-gt: training never reads the capture's depth; lift3d eval scores rendered depth against it."""
+    import lift3d.data.scene as scene_module
+    from lift3d.eval.evaluate import evaluate_run
+    from lift3d.train.trainer import train
+
+    scannet_folder(tmp_path / "sn")
+    scene = scannet.convert(tmp_path / "sn", tmp_path / "out", predictions=tmp_path / "sn" / "pred",
+                            test_every=2, options=WriteOptions(depth_as_gt=True, progress=False))
+    assert not scene.has_depth and all(f.depth_path is None for f in scene.frames)
+    assert [f.gt_depth_path.relative_to(tmp_path / "out").as_posix() for f in scene.frames] == \
+        [f"gt/depth/{f.name}.png" for f in scene.frames]
+    np.testing.assert_allclose(scene.gt_depth(2), 1.52, atol=1e-6)  # the source's depth, unchanged
+
+    depth_reads = []
+    real_read_depth = scene_module.read_depth
+    monkeypatch.setattr(scene_module, "read_depth", lambda path, *a: depth_reads.append(Path(path)) or
+                        real_read_depth(path, *a))
+    result = train(tmp_path / "out", preset="fast", output_dir=tmp_path / "runs", progress=False,
+                   print_summary=False,
+                   overrides={"optim": {"steps": 3}, "losses": {"feature": 0.0},
+                              "field": {"grid": {"resolution_cap": 16}},
+                              "data": {"rays_per_image": 32, "patch_size": 0},
+                              "trainer": {"eval_every": 0, "eval_images": 0, "checkpoint_every": 0}})
+    assert depth_reads == [] and result.summary["depth_supervision"] is False
+    m = evaluate_run(result.run.path, with_points3d=False, progress=False, timing_repeats=0, instances="field",
+                     write=False)
+    assert m["depth"]["reference"] == "gt_depth" and m["depth"]["n_valid"] == 2 * W * H
+    assert sorted(p.name for p in depth_reads) == ["0.png", "10.png"]  # the two test frames' gt/depth maps
+    assert all(p.parent == tmp_path / "out" / "gt" / "depth" for p in depth_reads)
+
+
 def block_mode_reference(labels, n):
     """Most frequent value of each n x n block (smallest on ties), one block at a time."""
     out = np.zeros((labels.shape[0] // n, labels.shape[1] // n), labels.dtype)

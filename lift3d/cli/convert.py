@@ -62,6 +62,9 @@ def add_parser(subparsers: argparse._SubParsersAction, verb: str) -> argparse.Ar
                    help="panoptic-lifting: ignore rs_semantics/ + rs_instance/ ground truth")
     p.add_argument("--no-depth", action="store_true",
                    help="panoptic-lifting, scannet: ignore depth/*.png")
+    p.add_argument("--depth-as-gt", action="store_true",
+                   help="panoptic-lifting, scannet: keep the depth maps for evaluation only (gt_depth_file_path: "
+                        "lift3d eval scores rendered depth against them); training then uses the images alone")
     p.add_argument("--depth-scale", type=float, default=1e-3, metavar="M",
                    help="metres per unit of the uint16 depth PNGs, in the input and the output "
                         "(default: %(default)s = millimetres)")
@@ -98,8 +101,10 @@ def run(args: argparse.Namespace) -> int:
         raise InputError("--depth-scale", "must be positive")
     categories = load_categories(args.categories) if args.categories is not None else None
     things = parse_id_list(args.things, "--things")
+    if args.depth_as_gt and args.no_depth:
+        raise InputError("--depth-as-gt", "keeps the depth maps that --no-depth leaves out: give one of them")
     options = WriteOptions(downscale=args.downscale, image_ext=f".{args.image_format}",
-                           depth_scale=args.depth_scale, overwrite=args.overwrite)
+                           depth_scale=args.depth_scale, overwrite=args.overwrite, depth_as_gt=args.depth_as_gt)
     _reject_foreign_flags(args)
 
     if args.source == "colmap":
@@ -139,6 +144,7 @@ _ONLY_FOR = {
     "predictions": ("--predictions", {"colmap", "scannet"}),
     "intrinsics_size": ("--intrinsics-size", {"scannet", "panoptic-lifting"}),
     "no_depth": ("--no-depth", {"scannet", "panoptic-lifting"}),
+    "depth_as_gt": ("--depth-as-gt", {"scannet", "panoptic-lifting"}),
     "no_gt": ("--no-gt", {"panoptic-lifting"}),
     "no_confidence": ("--no-confidence", {"panoptic-lifting"}),
 }

@@ -120,13 +120,17 @@ class FrameInput:
 
 @dataclass
 class WriteOptions:
-    """Options shared by every source (see ``lift3d convert --help``)."""
+    """Options shared by every source (see ``lift3d convert --help``).
+
+    ``depth_as_gt`` writes the source's depth maps as the frames' ``gt_depth_file_path`` (evaluation only)
+    instead of ``depth_file_path`` (which training reads)."""
 
     downscale: int = 1
     image_ext: str = ".png"
     depth_scale: float = 1e-3
     overwrite: bool = False
     progress: bool = True
+    depth_as_gt: bool = False
 
 
 def note(message: str) -> None:
@@ -324,6 +328,8 @@ def write_scene(
                                                        "frames are named by stem, so stems must be unique")
     if opts.downscale < 1:
         raise InputError("--downscale", "must be a positive integer")
+    if opts.depth_as_gt and not any(f.depth_path is not None for f in frames):
+        raise InputError("--depth-as-gt", "the source has no depth maps to keep for evaluation")
     _clear_outputs(out, opts.overwrite)
 
     cat_ids = {c.id for c in categories}
@@ -393,7 +399,8 @@ def write_scene(
             panoptic=None if labels is None else labels.panoptic, segments=() if labels is None else labels.segments,
             confidence=confidence,
             gt_panoptic=None if gt is None else gt.panoptic, gt_segments=() if gt is None else gt.segments,
-            depth=depth, distortion=fr.distortion or None,
+            depth=None if opts.depth_as_gt else depth, gt_depth=depth if opts.depth_as_gt else None,
+            distortion=fr.distortion or None,
         )
         if mask is not None:
             # SceneWriter.add_frame has no mask argument yet; nerfstudio's mask_path convention is
@@ -447,6 +454,8 @@ def summary(scene: Scene) -> str:
         parts.append("ground truth")
     if scene.has_depth:
         parts.append("depth")
+    if all(f.gt_depth_path is not None for f in scene.frames):
+        parts.append("depth for evaluation only (gt_depth_file_path)")
     if scene.sparse_points_paths is not None:
         sparse = scene.sparse_points()
         parts.append(f"{len(sparse)} sparse points (median error {sparse.median_error:.2f} px)")

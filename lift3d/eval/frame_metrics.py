@@ -82,7 +82,7 @@ def _describe_depth(m: dict, fmt: Callable[..., str]) -> str:
     if not d:
         return "depth: no GT depth"
     return (f"depth abs-rel {fmt(d.get('abs_rel'))}, RMSE {fmt(d.get('rmse'))}, MAE {fmt(d.get('mae'))} "
-            f"({d.get('n_valid')} px{', vs exact GT depth' if d.get('reference') == 'gt_depth' else ''})")
+            f"({d.get('n_valid')} px{', vs GT depth maps' if d.get('reference') == 'gt_depth' else ''})")
 
 
 @frame_metric("depth", describe=_describe_depth)
