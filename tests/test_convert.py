@@ -660,6 +660,209 @@ def test_downscale_keeps_rays_and_ids(tmp_path):
     assert half.depth(0).shape == (H // 2, W // 2)
 
 
+# --------------------------------------------------------------------------------------------- Open3D
+O3D_K = (40.0, 42.0, 23.0, 17.5)  # fx, fy, cx, cy in Open3D's convention (integer pixel centres)
+
+
+def open3d_folder(root, n=5, colour="image", poses="log", predictions=True):
+    """An Open3D RGB-D dataset folder whose pose and intrinsic files are written by Open3D itself."""
+    import open3d as o3d
+
+    stems = [f"{k:05d}" for k in range(n)]
+    write_images(root / colour, stems, ".jpg")
+    (root / "depth").mkdir(parents=True)
+    rng = np.random.default_rng(1)
+    for stem in stems:
+        depth = rng.integers(800, 3000, (H, W)).astype(np.uint16)
+        depth[:3, :5] = 0  # a hole
+        cv2.imwrite(str(root / "depth" / f"{stem}.png"), depth)
+    intrinsic = o3d.camera.PinholeCameraIntrinsic(W, H, *O3D_K)
+    o3d.io.write_pinhole_camera_intrinsic(str(root / "intrinsic.json"), intrinsic)
+    rigs = camera_rigs()[:n]
+    c2ws = []
+    for r_c2w, eye in rigs:
+        c2w = np.eye(4)
+        c2w[:3, :3], c2w[:3, 3] = r_c2w, eye
+        c2ws.append(c2w)
+    if poses == "posegraph":
+        graph = o3d.pipelines.registration.PoseGraph()
+        for c2w in c2ws:
+            graph.nodes.append(o3d.pipelines.registration.PoseGraphNode(c2w))
+        pose_file = root / "poses.json"
+        o3d.io.write_pose_graph(str(pose_file), graph)
+    else:
+        trajectory = o3d.camera.PinholeCameraTrajectory()
+        params = []
+        for c2w in c2ws:
+            p = o3d.camera.PinholeCameraParameters()
+            p.intrinsic, p.extrinsic = intrinsic, np.linalg.inv(c2w)  # Open3D's extrinsic: world-to-camera
+            params.append(p)
+        trajectory.parameters = params
+        pose_file = root / "scene" / "trajectory.log" if poses == "log" else root / "trajectory.json"
+        pose_file.parent.mkdir(exist_ok=True)
+        o3d.io.write_pinhole_camera_trajectory(str(pose_file), trajectory)
+    if predictions:
+        write_coco_predictions(root / "pred", stems)
+    return stems, c2ws, pose_file
+
+
+def convert_open3d(root, out, **kw):
+    from lift3d.convert import open3d_rgbd
+
+    kw.setdefault("options", QUIET)
+    return open3d_rgbd.convert(root, out, intrinsic=kw.pop("intrinsic", None), **kw)
+
+
+@pytest.mark.parametrize("poses", ["log", "posegraph", "trajectory-json"])
+def test_open3d_poses_and_intrinsics_round_trip(tmp_path, poses):
+    import open3d as o3d
+
+    root = tmp_path / "o3d"
+    stems, c2ws, pose_file = open3d_folder(root, poses=poses)
+    scene = convert_open3d(root, tmp_path / "out", predictions=root / "pred",
+                           poses=None if poses == "log" else pose_file)
+    assert [f.name for f in scene.frames] == stems and scene.has_depth and scene.has_pseudo_labels
+    exact = 1e-7 if poses == "log" else 1e-12  # the .log holds 8 decimals
+    np.testing.assert_allclose(scene.cameras.centers, [c[:3, 3] for c in c2ws], atol=exact)
+    np.testing.assert_allclose(scene.cameras.c2w_opencv, c2ws, atol=exact)  # same world frame, OpenCV axes
+    fx, fy, cx, cy = O3D_K
+    np.testing.assert_allclose([scene.cameras.fx[0], scene.cameras.fy[0], scene.cameras.cx[0], scene.cameras.cy[0]],
+                               [fx, fy, cx + 0.5, cy + 0.5])
+    # Open3D's own reading of the same files back-projects every depth pixel where lift3d's cameras do.
+    intrinsic = o3d.io.read_pinhole_camera_intrinsic(str(root / "intrinsic.json"))
+    if poses == "posegraph":
+        extrinsics = [np.linalg.inv(node.pose) for node in o3d.io.read_pose_graph(str(pose_file)).nodes]
+    else:
+        extrinsics = [p.extrinsic for p in o3d.io.read_pinhole_camera_trajectory(str(pose_file)).parameters]
+    rows, cols = (a.ravel() for a in np.mgrid[0:H, 0:W])
+    for i, stem in enumerate(stems):
+        depth_png = o3d.io.read_image(str(root / "depth" / f"{stem}.png"))
+        theirs = np.asarray(o3d.geometry.PointCloud.create_from_depth_image(
+            depth_png, intrinsic, extrinsics[i], depth_scale=1000.0, depth_trunc=1e9,
+            project_valid_depth_only=False).points)  # row-major over pixels, NaN where there is no depth
+        z = scene.depth(i).ravel()
+        ok = z > 0
+        np.testing.assert_array_equal(ok, np.isfinite(theirs[:, 0]))
+        mine = scene.cameras.unproject(i, cols[ok], rows[ok], z[ok])
+        np.testing.assert_allclose(mine, theirs[ok], atol=1e-5)
+
+
+def test_open3d_primesense_only_by_name(tmp_path):
+    root = tmp_path / "o3d"
+    open3d_folder(root)
+    (root / "intrinsic.json").unlink()
+    with pytest.raises(InputError) as err:
+        convert_open3d(root, tmp_path / "out")
+    assert err.value.where == "--intrinsic" and "primesense" in err.value.problem
+    assert not (tmp_path / "out").exists()
+    # 48x36 frames have PrimeSense's 4:3 shape: its 640x480 intrinsics are scaled to them.
+    scene = convert_open3d(root, tmp_path / "out", intrinsic="primesense")
+    s = W / 640
+    np.testing.assert_allclose([scene.cameras.fx[0], scene.cameras.cx[0], scene.cameras.cy[0]],
+                               [525 * s, (319.5 + 0.5) * s, (239.5 + 0.5) * s])
+    assert not scene.has_pseudo_labels and scene.categories == []
+
+
+def test_open3d_colour_folder_names_and_depth_as_gt(tmp_path):
+    root = tmp_path / "o3d"
+    stems, _, _ = open3d_folder(root, colour="color")
+    scene = convert_open3d(root, tmp_path / "out", predictions=root / "pred", test_every=0,
+                           options=WriteOptions(depth_as_gt=True, progress=False))
+    assert not scene.has_depth and len(scene.split("train")) == len(stems)
+    source = cv2.imread(str(root / "depth" / f"{stems[3]}.png"), cv2.IMREAD_UNCHANGED)
+    np.testing.assert_allclose(scene.gt_depth(3), source / 1000.0, atol=1e-6)
+
+
+def test_open3d_without_predictions_is_labelled_afterwards(tmp_path):
+    from lift3d.label import label_from_predictions
+
+    root = tmp_path / "o3d"
+    stems, _, _ = open3d_folder(root, predictions=False)
+    scene = convert_open3d(root, tmp_path / "out")
+    assert not scene.has_pseudo_labels and scene.has_depth
+    (tmp_path / "d2").mkdir()
+    for stem in stems:  # detectron2-style predictions: COCO's contiguous class 0 is "person", 43 "table"
+        seg = np.ones((H, W), np.int32)
+        seg[:, W // 2:] = 2
+        np.savez(tmp_path / "d2" / f"{stem}.npz", panoptic_seg=seg, segments_info=json.dumps(
+            [{"id": 1, "category_id": 0, "isthing": True, "score": 0.9},
+             {"id": 2, "category_id": 43, "isthing": True, "score": 0.8}]))
+    label_from_predictions(tmp_path / "out", tmp_path / "d2", progress=False)
+    labelled = load_scene(tmp_path / "out")
+    assert labelled.has_pseudo_labels and len(labelled.categories) > 0 and labelled.has_depth
+    labelled.validate()
+
+
+def test_open3d_bad_input_is_one_line(tmp_path, capsys, monkeypatch):
+    monkeypatch.setenv("LIFT3D_NO_PROGRESS", "1")
+    root = tmp_path / "o3d"
+    stems, _, log = open3d_folder(root)
+
+    def fails(where, fragment, *flags):
+        rc = cli_main(["convert", "--from", "open3d", str(root), "--out", str(tmp_path / "out"), *flags])
+        lines = capsys.readouterr().err.strip().splitlines()
+        errors = [line for line in lines if ": error: " in line]
+        assert rc == 2 and len(errors) == 1 and all(line.startswith("lift3d convert: ") for line in lines), lines
+        assert errors[0].startswith(f"lift3d convert: error: {where}: ") and fragment in errors[0], errors
+        assert not (tmp_path / "out").exists()  # checked before anything is written
+
+    original = log.read_text()
+    # Poses: missing, count mismatch, not rigid, truncated, several candidates.
+    log.rename(tmp_path / "elsewhere.log")
+    fails(root, "no poses")
+    fails(tmp_path / "nope.log", "file not found", "--poses", str(tmp_path / "nope.log"))
+    log.write_text(original)
+    (root / "image" / f"{stems[-1]}.jpg").unlink()
+    (root / "depth" / f"{stems[-1]}.png").unlink()
+    fails(log, f"has {len(stems)} poses but {root / 'image'} has {len(stems) - 1} colour frames")
+    write_images(root / "image", stems[-1:], ".jpg")
+    fails(root / "depth", f"has {len(stems) - 1} depth frames but image/ has {len(stems)} colour frames")
+    cv2.imwrite(str(root / "depth" / "00009.png"), np.zeros((H, W), np.uint16))  # stems match, order does not
+    fails(root / "depth", "colour frame '00004' pairs with depth frame '00009'")
+    (root / "depth" / "00009.png").rename(root / "depth" / f"{stems[-1]}.png")
+    lines = original.splitlines()
+    lines[6] = "2 0 0 0"  # frame 1's first row: a scaled rotation
+    log.write_text("\n".join(lines) + "\n")
+    fails(log, "line 6: the pose of frame 1 is not a rigid transform")
+    log.write_text("\n".join(original.splitlines()[:-2]) + "\n")
+    fails(log, "the file ends before this frame's 4x4 matrix is complete")
+    log.write_text("\n".join(original.splitlines()[:1] + ["1.0 x 0 0"] + original.splitlines()[2:]) + "\n")
+    fails(log, "line 2: expected a row of four numbers")
+    log.write_text(original)
+    for folder in ("test_scene", "other"):  # no DIR/trajectory.log, no DIR/scene/trajectory.log: which one?
+        (root / folder).mkdir(exist_ok=True)
+        (root / folder / "trajectory.log").write_text(original)
+    log.unlink()
+    fails(root, "several trajectory.log files (other/trajectory.log, test_scene/trajectory.log)")
+    (root / "other" / "trajectory.log").unlink()
+    log = root / "test_scene" / "trajectory.log"  # the only one left is found
+    # Intrinsics: not JSON, no size, row-major matrix, depth unit contradicting --depth-scale.
+    good = json.loads((root / "intrinsic.json").read_text())
+    (root / "intrinsic.json").write_text('{"width": 48,')
+    fails(root / "intrinsic.json", "not valid JSON")
+    (root / "intrinsic.json").write_text(json.dumps({**good, "width": None}))
+    fails(root / "intrinsic.json", "width/height")
+    fx, fy, cx, cy = O3D_K
+    (root / "intrinsic.json").write_text(json.dumps({**good, "intrinsic_matrix": [fx, 0, cx, 0, fy, cy, 0, 0, 1]}))
+    fails(root / "intrinsic.json", "written row by row")
+    (root / "intrinsic.json").write_text(json.dumps({**good, "depth_scale": 4000.0}))
+    fails(root / "intrinsic.json", "pass --depth-scale 0.00025")
+    intrinsic = tmp_path / "k.json"
+    intrinsic.write_text(json.dumps(good))
+    # A pose graph with one node per fragment instead of per frame.
+    graph = {"class_name": "PoseGraph", "nodes": [{"pose": np.eye(4).ravel().tolist()}] * 2, "edges": []}
+    (tmp_path / "scene_graph.json").write_text(json.dumps(graph))
+    fails(tmp_path / "scene_graph.json", "one node per fragment", "--intrinsic", str(intrinsic),
+          "--poses", str(tmp_path / "scene_graph.json"))
+    fails("--intrinsic", "is not used with --from scannet", "--intrinsic", "primesense", "--from", "scannet")
+    fails("--depth-as-gt", "--no-depth", "--depth-as-gt", "--no-depth")
+    # All fixed: the one */trajectory.log left is used, and said so.
+    (root / "intrinsic.json").write_text(json.dumps(good))
+    assert cli_main(["convert", "--from", "open3d", str(root), "--out", str(tmp_path / "ok")]) == 0
+    assert f"poses from {log}" in capsys.readouterr().err
+    assert load_scene(tmp_path / "ok").cameras.c2w.shape == (len(stems), 4, 4)
+
+
 # --------------------------------------------------------------------------------------------- --downscale
 def write_frames(tmp_path, images, depths_mm, panoptics, confidences=None, masks=None,
                  intrinsics=(30.0, 30.0, 24.0, 18.0)):

@@ -1,4 +1,5 @@
-"""``lift3d convert --from colmap|panoptic-lifting|scannet SRC --out DIR``: other inputs into a scene folder.
+"""``lift3d convert --from colmap|open3d|panoptic-lifting|scannet SRC --out DIR``: other inputs into a scene
+folder.
 
 See ``docs/convert.md`` for the folder layouts each source expects and the conventions they follow.
 """
@@ -15,6 +16,7 @@ EPILOG = """examples:
   lift3d convert --from scannet scans/scene0423_02 --predictions preds/scene0423_02 \\
       --categories classes.json --out scenes/scene0423_02 --downscale 2
   lift3d convert --from panoptic-lifting data/replica/room_0 --out scenes/room_0
+  lift3d convert --from open3d livingroom1 --intrinsic primesense --out scenes/livingroom1 --depth-as-gt
 """
 
 
@@ -22,27 +24,36 @@ def add_parser(subparsers: argparse._SubParsersAction, verb: str) -> argparse.Ar
     """Create the ``convert`` sub-command."""
     p = subparsers.add_parser(
         verb,
-        help="convert COLMAP, Panoptic Lifting or ScanNet-style inputs into a scene folder",
+        help="convert COLMAP, Open3D RGB-D, Panoptic Lifting or ScanNet-style inputs into a scene folder",
         description="Convert posed images plus 2D panoptic predictions from another layout into lift3d's "
                     "scene folder (transforms.json with OpenGL camera-to-world poses, COCO panoptic "
                     "pseudo-labels, optional ground truth and depth). The result is read back to check it.",
         epilog=EPILOG,
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
-    p.add_argument("--from", dest="source", required=True, choices=["colmap", "panoptic-lifting", "scannet"],
+    p.add_argument("--from", dest="source", required=True, choices=["colmap", "open3d", "panoptic-lifting", "scannet"],
                    help="the layout of SRC")
     p.add_argument("src", metavar="SRC", type=Path,
                    help="colmap: a sparse model folder or a workspace holding sparse/0, sparse or "
-                        "colmap/sparse/0; panoptic-lifting / scannet: the scene folder")
+                        "colmap/sparse/0; open3d: the dataset folder (image/ or color/, depth/); "
+                        "panoptic-lifting / scannet: the scene folder")
     p.add_argument("--out", required=True, type=Path, metavar="DIR", help="output scene folder")
     p.add_argument("--images", type=Path, metavar="DIR",
                    help="colmap: folder the image names in images.txt|bin are relative to (default: "
                         "SRC/images, else an images/ folder beside the model folder or up to three levels "
                         "above it)")
     p.add_argument("--predictions", type=Path, metavar="DIR",
-                   help="colmap (required), scannet: 2D panoptic predictions per image, matched by file "
-                        "stem: COCO panoptic (panoptic.json + PNGs) or semantic/ + instance/ PNG folders; "
-                        "without them scannet writes a scene without pseudo-labels, for lift3d label")
+                   help="colmap (required), open3d, scannet: 2D panoptic predictions per image, matched by "
+                        "file stem: COCO panoptic (panoptic.json + PNGs) or semantic/ + instance/ PNG folders; "
+                        "without them open3d and scannet write a scene without pseudo-labels, for lift3d label")
+    p.add_argument("--intrinsic", metavar="FILE|primesense",
+                   help="open3d: an Open3D PinholeCameraIntrinsic JSON (width, height, intrinsic_matrix), or "
+                        "'primesense' for Open3D's PrimeSense default (640x480, fx=fy=525, cx=319.5, cy=239.5) "
+                        "(default: SRC/intrinsic.json)")
+    p.add_argument("--poses", type=Path, metavar="FILE",
+                   help="open3d: camera-to-world poses, a trajectory .log or an Open3D PoseGraph / "
+                        "PinholeCameraTrajectory .json, paired with the colour frames in order (default: "
+                        "SRC/trajectory.log, else SRC/scene/trajectory.log, else the only SRC/*/trajectory.log)")
     p.add_argument("--categories", type=Path, metavar="FILE",
                    help="JSON list of COCO panoptic categories {id, name, isthing, color} (or a COCO panoptic "
                         "JSON holding one); needed when the predictions carry none, unless --things is given")
@@ -61,10 +72,11 @@ def add_parser(subparsers: argparse._SubParsersAction, verb: str) -> argparse.Ar
     p.add_argument("--no-gt", action="store_true",
                    help="panoptic-lifting: ignore rs_semantics/ + rs_instance/ ground truth")
     p.add_argument("--no-depth", action="store_true",
-                   help="panoptic-lifting, scannet: ignore depth/*.png")
+                   help="open3d, panoptic-lifting, scannet: ignore depth/*.png")
     p.add_argument("--depth-as-gt", action="store_true",
-                   help="panoptic-lifting, scannet: keep the depth maps for evaluation only (gt_depth_file_path: "
-                        "lift3d eval scores rendered depth against them); training then uses the images alone")
+                   help="open3d, panoptic-lifting, scannet: keep the depth maps for evaluation only "
+                        "(gt_depth_file_path: lift3d eval scores rendered depth against them); training then uses "
+                        "the images alone")
     p.add_argument("--depth-scale", type=float, default=1e-3, metavar="M",
                    help="metres per unit of the uint16 depth PNGs, in the input and the output "
                         "(default: %(default)s = millimetres)")
@@ -116,6 +128,13 @@ def run(args: argparse.Namespace) -> int:
         scene = colmap.convert(args.src, args.out, predictions=args.predictions, images=args.images,
                                categories=categories, things=things, test_every=args.test_every,
                                scene_box=args.scene_box, keep_points=not args.no_points, options=options)
+    elif args.source == "open3d":
+        # here, not at module level: keeps `lift3d --help` cheap
+        from lift3d.convert import open3d_rgbd
+
+        scene = open3d_rgbd.convert(args.src, args.out, intrinsic=args.intrinsic, poses=args.poses,
+                                    predictions=args.predictions, categories=categories, things=things,
+                                    test_every=args.test_every, use_depth=not args.no_depth, options=options)
     elif args.source == "scannet":
         # here, not at module level: keeps `lift3d --help` cheap
         from lift3d.convert import scannet
@@ -141,10 +160,12 @@ _ONLY_FOR = {
     "images": ("--images", {"colmap"}),
     "scene_box": ("--scene-box", {"colmap"}),
     "no_points": ("--no-points", {"colmap"}),
-    "predictions": ("--predictions", {"colmap", "scannet"}),
+    "predictions": ("--predictions", {"colmap", "open3d", "scannet"}),
+    "intrinsic": ("--intrinsic", {"open3d"}),
+    "poses": ("--poses", {"open3d"}),
     "intrinsics_size": ("--intrinsics-size", {"scannet", "panoptic-lifting"}),
-    "no_depth": ("--no-depth", {"scannet", "panoptic-lifting"}),
-    "depth_as_gt": ("--depth-as-gt", {"scannet", "panoptic-lifting"}),
+    "no_depth": ("--no-depth", {"open3d", "scannet", "panoptic-lifting"}),
+    "depth_as_gt": ("--depth-as-gt", {"open3d", "scannet", "panoptic-lifting"}),
     "no_gt": ("--no-gt", {"panoptic-lifting"}),
     "no_confidence": ("--no-confidence", {"panoptic-lifting"}),
 }

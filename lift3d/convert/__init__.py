@@ -1,7 +1,7 @@
 """``lift3d convert``: other capture layouts into the scene folder of docs/scene-format.md.
 
 Every source reader (:mod:`~lift3d.convert.colmap`, :mod:`~lift3d.convert.panoptic_lifting`,
-:mod:`~lift3d.convert.scannet`) only *describes* its frames as :class:`FrameInput` records: where the image
+:mod:`~lift3d.convert.scannet`, :mod:`~lift3d.convert.open3d_rgbd`) only *describes* its frames as :class:`FrameInput` records: where the image
 is, its camera-to-world pose in **OpenCV** axes, its intrinsics and a loader for its 2D panoptic
 pseudo-labels. :func:`write_scene` then does the work that is the same for all of them, in one place:
 
@@ -14,7 +14,7 @@ pseudo-labels. :func:`write_scene` then does the work that is the same for all o
 
 Pixel convention: lift3d puts pixel ``(c, r)``'s centre at ``(c + 0.5, r + 0.5)`` (as COLMAP does). Readers
 whose source puts pixel centres on integer coordinates (ScanNet calibration files, Panoptic Lifting's ray
-generation) add 0.5 to ``cx, cy`` before building their :class:`FrameInput`.
+generation, Open3D) add 0.5 to ``cx, cy`` before building their :class:`FrameInput`.
 """
 
 from __future__ import annotations
@@ -39,6 +39,7 @@ from lift3d.utils.progress import progress_bar
 #: The ``--from`` choices and the module that reads each.
 SOURCES = {
     "colmap": "lift3d.convert.colmap",
+    "open3d": "lift3d.convert.open3d_rgbd",
     "panoptic-lifting": "lift3d.convert.panoptic_lifting",
     "scannet": "lift3d.convert.scannet",
 }
