@@ -861,6 +861,14 @@ def test_open3d_bad_input_is_one_line(tmp_path, capsys, monkeypatch):
     assert cli_main(["convert", "--from", "open3d", str(root), "--out", str(tmp_path / "ok")]) == 0
     assert f"poses from {log}" in capsys.readouterr().err
     assert load_scene(tmp_path / "ok").cameras.c2w.shape == (len(stems), 4, 4)
+    # Unreadable pixels are found while writing; the message names the file all the same.
+    for broken in (root / "image" / f"{stems[2]}.jpg", root / "depth" / f"{stems[3]}.png"):
+        good_bytes = broken.read_bytes()
+        broken.write_bytes(good_bytes[:40])
+        rc = cli_main(["convert", "--from", "open3d", str(root), "--out", str(tmp_path / "bad"), "--overwrite"])
+        errors = [line for line in capsys.readouterr().err.splitlines() if ": error: " in line]
+        assert rc == 2 and len(errors) == 1 and f"error: {broken}: " in errors[0], errors
+        broken.write_bytes(good_bytes)
 
 
 # --------------------------------------------------------------------------------------------- --downscale

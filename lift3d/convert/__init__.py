@@ -1,9 +1,10 @@
 """``lift3d convert``: other capture layouts into the scene folder of docs/scene-format.md.
 
 Every source reader (:mod:`~lift3d.convert.colmap`, :mod:`~lift3d.convert.panoptic_lifting`,
-:mod:`~lift3d.convert.scannet`, :mod:`~lift3d.convert.open3d_rgbd`) only *describes* its frames as :class:`FrameInput` records: where the image
-is, its camera-to-world pose in **OpenCV** axes, its intrinsics and a loader for its 2D panoptic
-pseudo-labels. :func:`write_scene` then does the work that is the same for all of them, in one place:
+:mod:`~lift3d.convert.scannet`, :mod:`~lift3d.convert.open3d_rgbd`) only *describes* its frames as
+:class:`FrameInput` records: where the image is, its camera-to-world pose in **OpenCV** axes, its intrinsics
+and a loader for its 2D panoptic pseudo-labels. :func:`write_scene` then does the work that is the same for
+all of them, in one place:
 
 * reads each image and checks (or rescales) the intrinsics against its real size,
 * converts the pose to ``transforms.json``'s OpenGL camera-to-world with
