@@ -368,11 +368,13 @@ def test_colmap_points3d_are_kept_as_sparse_points(tmp_path, fmt, model):
     assert np.all(sp.obs_sigma > 0) and np.all(np.bincount(sp.obs_point) == sp.track_length)
 
 
-def test_colmap_points3d_follow_a_downscale(tmp_path):
+@pytest.mark.parametrize("n", [2, 5])  # 48x36 is not a multiple of 5: the last columns and rows are dropped
+def test_colmap_points3d_follow_a_downscale(tmp_path, n):
     colmap_capture(tmp_path / "ws", "txt", points=POINTS)
     scene = colmap_convert.convert(tmp_path / "ws", tmp_path / "out", predictions=tmp_path / "ws" / "pred",
                                    categories=[Category(c["id"], c["name"], bool(c["isthing"])) for c in CATEGORIES],
-                                   options=WriteOptions(progress=False, downscale=2))
+                                   options=WriteOptions(progress=False, downscale=n))
+    assert scene.image(0).shape[:2] == (H // n, W // n)
     sp = scene.sparse_points()
     for k in range(len(scene)):
         obs = sp.frame_observations(k)
@@ -585,6 +587,65 @@ def test_scannet_folder(tmp_path):
     np.testing.assert_allclose(uv[0], [40 * 0.1 + 23.5, 40 * -0.2 + 18.0], atol=1e-6)
 
 
+def test_scannet_without_predictions_is_a_scene_to_label(tmp_path):
+    from lift3d.train.trainer import train
+
+    stems, _ = scannet_folder(tmp_path / "sn")
+    scene = scannet.convert(tmp_path / "sn", tmp_path / "out", predictions=None, options=QUIET)
+    assert not scene.has_pseudo_labels and scene.categories == [] and scene.has_depth
+    assert [f.name for f in scene.frames] == stems
+    assert not (tmp_path / "out" / "panoptic.json").exists() and not (tmp_path / "out" / "panoptic").exists()
+    with pytest.raises(InputError) as err:
+        train(tmp_path / "out", preset="fast", output_dir=tmp_path / "runs", progress=False, print_summary=False)
+    assert err.value.where == str(tmp_path / "out") and "no pseudo-labels: run lift3d label" in err.value.problem
+    assert not (tmp_path / "runs").exists()  # refused before a run folder is made
+    with pytest.raises(InputError, match="--categories"):
+        scannet.convert(tmp_path / "sn", tmp_path / "out2", predictions=None, options=QUIET,
+                        categories=[Category(1, "wall", False)])
+
+
+def test_depth_as_gt_is_for_evaluation_only(tmp_path, monkeypatch):
+    """--depth-as-gt: training never reads the capture's depth; lift3d eval scores rendered depth against it."""
+    import lift3d.data.scene as scene_module
+    from lift3d.eval.evaluate import evaluate_run
+    from lift3d.train.trainer import train
+
+    scannet_folder(tmp_path / "sn")
+    scene = scannet.convert(tmp_path / "sn", tmp_path / "out", predictions=tmp_path / "sn" / "pred",
+                            test_every=2, options=WriteOptions(depth_as_gt=True, progress=False))
+    assert not scene.has_depth and all(f.depth_path is None for f in scene.frames)
+    assert [f.gt_depth_path.relative_to(tmp_path / "out").as_posix() for f in scene.frames] == \
+        [f"gt/depth/{f.name}.png" for f in scene.frames]
+    np.testing.assert_allclose(scene.gt_depth(2), 1.52, atol=1e-6)  # the source's depth, unchanged
+
+    depth_reads = []
+    real_read_depth = scene_module.read_depth
+    monkeypatch.setattr(scene_module, "read_depth", lambda path, *a: depth_reads.append(Path(path)) or
+                        real_read_depth(path, *a))
+    result = train(tmp_path / "out", preset="fast", output_dir=tmp_path / "runs", progress=False,
+                   print_summary=False,
+                   overrides={"optim": {"steps": 3}, "losses": {"feature": 0.0},
+                              "field": {"grid": {"resolution_cap": 16}},
+                              "data": {"rays_per_image": 32, "patch_size": 0},
+                              "trainer": {"eval_every": 0, "eval_images": 0, "checkpoint_every": 0}})
+    assert depth_reads == [] and result.summary["depth_supervision"] is False
+    m = evaluate_run(result.run.path, with_points3d=False, progress=False, timing_repeats=0, instances="field",
+                     write=False)
+    assert m["depth"]["reference"] == "gt_depth" and m["depth"]["n_valid"] == 2 * W * H
+    assert {p.name for p in depth_reads} == {"0.png", "10.png"}  # the two test frames' gt/depth maps
+    assert all(p.parent == tmp_path / "out" / "gt" / "depth" for p in depth_reads)
+
+
+def block_mode_reference(labels, n):
+    """Most frequent value of each n x n block (smallest on ties), one block at a time."""
+    out = np.zeros((labels.shape[0] // n, labels.shape[1] // n), labels.dtype)
+    for i in range(out.shape[0]):
+        for j in range(out.shape[1]):
+            values, counts = np.unique(labels[i * n:(i + 1) * n, j * n:(j + 1) * n], return_counts=True)
+            out[i, j] = values[np.argmax(counts)]  # np.unique sorts: the first maximum is the smallest value
+    return out
+
+
 def test_downscale_keeps_rays_and_ids(tmp_path):
     scannet_folder(tmp_path / "sn", n=2)
     full = scannet.convert(tmp_path / "sn", tmp_path / "full", predictions=tmp_path / "sn" / "pred", options=QUIET)
@@ -593,8 +654,318 @@ def test_downscale_keeps_rays_and_ids(tmp_path):
     assert half.image(0).shape == (H // 2, W // 2, 3)
     x_world = np.array([[0.3, 0.1, 0.2]])
     np.testing.assert_allclose(half.cameras.project(0, x_world)[0], full.cameras.project(0, x_world)[0] / 2)
-    np.testing.assert_array_equal(half.pseudo_labels(0).semantic, full.pseudo_labels(0).semantic[::2, ::2])
+    for f in range(2):
+        np.testing.assert_array_equal(half.pseudo_labels(f).segment,
+                                      block_mode_reference(full.pseudo_labels(f).segment, 2))
     assert half.depth(0).shape == (H // 2, W // 2)
+
+
+# --------------------------------------------------------------------------------------------- Open3D
+O3D_K = (40.0, 42.0, 23.0, 17.5)  # fx, fy, cx, cy in Open3D's convention (integer pixel centres)
+
+
+def open3d_folder(root, n=5, colour="image", poses="log", predictions=True):
+    """An Open3D RGB-D dataset folder whose pose and intrinsic files are written by Open3D itself."""
+    import open3d as o3d
+
+    stems = [f"{k:05d}" for k in range(n)]
+    write_images(root / colour, stems, ".jpg")
+    (root / "depth").mkdir(parents=True)
+    rng = np.random.default_rng(1)
+    for stem in stems:
+        depth = rng.integers(800, 3000, (H, W)).astype(np.uint16)
+        depth[:3, :5] = 0  # a hole
+        cv2.imwrite(str(root / "depth" / f"{stem}.png"), depth)
+    intrinsic = o3d.camera.PinholeCameraIntrinsic(W, H, *O3D_K)
+    o3d.io.write_pinhole_camera_intrinsic(str(root / "intrinsic.json"), intrinsic)
+    rigs = camera_rigs()[:n]
+    c2ws = []
+    for r_c2w, eye in rigs:
+        c2w = np.eye(4)
+        c2w[:3, :3], c2w[:3, 3] = r_c2w, eye
+        c2ws.append(c2w)
+    if poses == "posegraph":
+        graph = o3d.pipelines.registration.PoseGraph()
+        for c2w in c2ws:
+            graph.nodes.append(o3d.pipelines.registration.PoseGraphNode(c2w))
+        pose_file = root / "poses.json"
+        o3d.io.write_pose_graph(str(pose_file), graph)
+    else:
+        trajectory = o3d.camera.PinholeCameraTrajectory()
+        params = []
+        for c2w in c2ws:
+            p = o3d.camera.PinholeCameraParameters()
+            p.intrinsic, p.extrinsic = intrinsic, np.linalg.inv(c2w)  # Open3D's extrinsic: world-to-camera
+            params.append(p)
+        trajectory.parameters = params
+        pose_file = root / "scene" / "trajectory.log" if poses == "log" else root / "trajectory.json"
+        pose_file.parent.mkdir(exist_ok=True)
+        o3d.io.write_pinhole_camera_trajectory(str(pose_file), trajectory)
+    if predictions:
+        write_coco_predictions(root / "pred", stems)
+    return stems, c2ws, pose_file
+
+
+def convert_open3d(root, out, **kw):
+    from lift3d.convert import open3d_rgbd
+
+    kw.setdefault("options", QUIET)
+    return open3d_rgbd.convert(root, out, intrinsic=kw.pop("intrinsic", None), **kw)
+
+
+@pytest.mark.parametrize("poses", ["log", "posegraph", "trajectory-json"])
+def test_open3d_poses_and_intrinsics_round_trip(tmp_path, poses):
+    import open3d as o3d
+
+    root = tmp_path / "o3d"
+    stems, c2ws, pose_file = open3d_folder(root, poses=poses)
+    scene = convert_open3d(root, tmp_path / "out", predictions=root / "pred",
+                           poses=None if poses == "log" else pose_file)
+    assert [f.name for f in scene.frames] == stems and scene.has_depth and scene.has_pseudo_labels
+    exact = 1e-7 if poses == "log" else 1e-12  # the .log holds 8 decimals
+    np.testing.assert_allclose(scene.cameras.centers, [c[:3, 3] for c in c2ws], atol=exact)
+    np.testing.assert_allclose(scene.cameras.c2w_opencv, c2ws, atol=exact)  # same world frame, OpenCV axes
+    fx, fy, cx, cy = O3D_K
+    np.testing.assert_allclose([scene.cameras.fx[0], scene.cameras.fy[0], scene.cameras.cx[0], scene.cameras.cy[0]],
+                               [fx, fy, cx + 0.5, cy + 0.5])
+    # Open3D's own reading of the same files back-projects every depth pixel where lift3d's cameras do.
+    intrinsic = o3d.io.read_pinhole_camera_intrinsic(str(root / "intrinsic.json"))
+    if poses == "posegraph":
+        extrinsics = [np.linalg.inv(node.pose) for node in o3d.io.read_pose_graph(str(pose_file)).nodes]
+    else:
+        extrinsics = [p.extrinsic for p in o3d.io.read_pinhole_camera_trajectory(str(pose_file)).parameters]
+    rows, cols = (a.ravel() for a in np.mgrid[0:H, 0:W])
+    for i, stem in enumerate(stems):
+        depth_png = o3d.io.read_image(str(root / "depth" / f"{stem}.png"))
+        theirs = np.asarray(o3d.geometry.PointCloud.create_from_depth_image(
+            depth_png, intrinsic, extrinsics[i], depth_scale=1000.0, depth_trunc=1e9,
+            project_valid_depth_only=False).points)  # row-major over pixels, NaN where there is no depth
+        z = scene.depth(i).ravel()
+        ok = z > 0
+        np.testing.assert_array_equal(ok, np.isfinite(theirs[:, 0]))
+        mine = scene.cameras.unproject(i, cols[ok], rows[ok], z[ok])
+        np.testing.assert_allclose(mine, theirs[ok], atol=1e-5)
+
+
+def test_open3d_primesense_only_by_name(tmp_path):
+    root = tmp_path / "o3d"
+    open3d_folder(root)
+    (root / "intrinsic.json").unlink()
+    with pytest.raises(InputError) as err:
+        convert_open3d(root, tmp_path / "out")
+    assert err.value.where == "--intrinsic" and "primesense" in err.value.problem
+    assert not (tmp_path / "out").exists()
+    # 48x36 frames have PrimeSense's 4:3 shape: its 640x480 intrinsics are scaled to them.
+    scene = convert_open3d(root, tmp_path / "out", intrinsic="primesense")
+    s = W / 640
+    np.testing.assert_allclose([scene.cameras.fx[0], scene.cameras.cx[0], scene.cameras.cy[0]],
+                               [525 * s, (319.5 + 0.5) * s, (239.5 + 0.5) * s])
+    assert not scene.has_pseudo_labels and scene.categories == []
+
+
+def test_open3d_colour_folder_names_and_depth_as_gt(tmp_path):
+    root = tmp_path / "o3d"
+    stems, _, _ = open3d_folder(root, colour="color")
+    scene = convert_open3d(root, tmp_path / "out", predictions=root / "pred", test_every=0,
+                           options=WriteOptions(depth_as_gt=True, progress=False))
+    assert not scene.has_depth and len(scene.split("train")) == len(stems)
+    source = cv2.imread(str(root / "depth" / f"{stems[3]}.png"), cv2.IMREAD_UNCHANGED)
+    np.testing.assert_allclose(scene.gt_depth(3), source / 1000.0, atol=1e-6)
+
+
+def test_open3d_without_predictions_is_labelled_afterwards(tmp_path):
+    from lift3d.label import label_from_predictions
+
+    root = tmp_path / "o3d"
+    stems, _, _ = open3d_folder(root, predictions=False)
+    scene = convert_open3d(root, tmp_path / "out")
+    assert not scene.has_pseudo_labels and scene.has_depth
+    (tmp_path / "d2").mkdir()
+    for stem in stems:  # detectron2-style predictions: COCO's contiguous class 0 is "person", 43 "table"
+        seg = np.ones((H, W), np.int32)
+        seg[:, W // 2:] = 2
+        np.savez(tmp_path / "d2" / f"{stem}.npz", panoptic_seg=seg, segments_info=json.dumps(
+            [{"id": 1, "category_id": 0, "isthing": True, "score": 0.9},
+             {"id": 2, "category_id": 43, "isthing": True, "score": 0.8}]))
+    label_from_predictions(tmp_path / "out", tmp_path / "d2", progress=False)
+    labelled = load_scene(tmp_path / "out")
+    assert labelled.has_pseudo_labels and len(labelled.categories) > 0 and labelled.has_depth
+    labelled.validate()
+
+
+def test_open3d_bad_input_is_one_line(tmp_path, capsys, monkeypatch):
+    monkeypatch.setenv("LIFT3D_NO_PROGRESS", "1")
+    root = tmp_path / "o3d"
+    stems, _, log = open3d_folder(root)
+
+    def fails(where, fragment, *flags):
+        rc = cli_main(["convert", "--from", "open3d", str(root), "--out", str(tmp_path / "out"), *flags])
+        lines = capsys.readouterr().err.strip().splitlines()
+        errors = [line for line in lines if ": error: " in line]
+        assert rc == 2 and len(errors) == 1 and all(line.startswith("lift3d convert: ") for line in lines), lines
+        assert errors[0].startswith(f"lift3d convert: error: {where}: ") and fragment in errors[0], errors
+        assert not (tmp_path / "out").exists()  # checked before anything is written
+
+    original = log.read_text()
+    # Poses: missing, count mismatch, not rigid, truncated, several candidates.
+    log.rename(tmp_path / "elsewhere.log")
+    fails(root, "no poses")
+    fails(tmp_path / "nope.log", "file not found", "--poses", str(tmp_path / "nope.log"))
+    log.write_text(original)
+    (root / "image" / f"{stems[-1]}.jpg").unlink()
+    (root / "depth" / f"{stems[-1]}.png").unlink()
+    fails(log, f"has {len(stems)} poses but {root / 'image'} has {len(stems) - 1} colour frames")
+    write_images(root / "image", stems[-1:], ".jpg")
+    fails(root / "depth", f"has {len(stems) - 1} depth frames but image/ has {len(stems)} colour frames")
+    cv2.imwrite(str(root / "depth" / "00009.png"), np.zeros((H, W), np.uint16))  # stems match, order does not
+    fails(root / "depth", "colour frame '00004' pairs with depth frame '00009'")
+    (root / "depth" / "00009.png").rename(root / "depth" / f"{stems[-1]}.png")
+    lines = original.splitlines()
+    lines[6] = "2 0 0 0"  # frame 1's first row: a scaled rotation
+    log.write_text("\n".join(lines) + "\n")
+    fails(log, "line 6: the pose of frame 1 is not a rigid transform")
+    log.write_text("\n".join(original.splitlines()[:-2]) + "\n")
+    fails(log, "the file ends before this frame's 4x4 matrix is complete")
+    log.write_text("\n".join(original.splitlines()[:1] + ["1.0 x 0 0"] + original.splitlines()[2:]) + "\n")
+    fails(log, "line 2: expected a row of four numbers")
+    log.write_text(original)
+    for folder in ("test_scene", "other"):  # no DIR/trajectory.log, no DIR/scene/trajectory.log: which one?
+        (root / folder).mkdir(exist_ok=True)
+        (root / folder / "trajectory.log").write_text(original)
+    log.unlink()
+    fails(root, "several trajectory.log files (other/trajectory.log, test_scene/trajectory.log)")
+    (root / "other" / "trajectory.log").unlink()
+    log = root / "test_scene" / "trajectory.log"  # the only one left is found
+    # Intrinsics: not JSON, no size, row-major matrix, depth unit contradicting --depth-scale.
+    good = json.loads((root / "intrinsic.json").read_text())
+    (root / "intrinsic.json").write_text('{"width": 48,')
+    fails(root / "intrinsic.json", "not valid JSON")
+    (root / "intrinsic.json").write_text(json.dumps({**good, "width": None}))
+    fails(root / "intrinsic.json", "width/height")
+    fx, fy, cx, cy = O3D_K
+    (root / "intrinsic.json").write_text(json.dumps({**good, "intrinsic_matrix": [fx, 0, cx, 0, fy, cy, 0, 0, 1]}))
+    fails(root / "intrinsic.json", "written row by row")
+    (root / "intrinsic.json").write_text(json.dumps({**good, "depth_scale": 4000.0}))
+    fails(root / "intrinsic.json", "pass --depth-scale 0.00025")
+    intrinsic = tmp_path / "k.json"
+    intrinsic.write_text(json.dumps(good))
+    # A pose graph with one node per fragment instead of per frame.
+    graph = {"class_name": "PoseGraph", "nodes": [{"pose": np.eye(4).ravel().tolist()}] * 2, "edges": []}
+    (tmp_path / "scene_graph.json").write_text(json.dumps(graph))
+    fails(tmp_path / "scene_graph.json", "one node per fragment", "--intrinsic", str(intrinsic),
+          "--poses", str(tmp_path / "scene_graph.json"))
+    fails("--intrinsic", "is not used with --from scannet", "--intrinsic", "primesense", "--from", "scannet")
+    fails("--depth-as-gt", "--no-depth", "--depth-as-gt", "--no-depth")
+    # All fixed: the one */trajectory.log left is used, and said so.
+    (root / "intrinsic.json").write_text(json.dumps(good))
+    assert cli_main(["convert", "--from", "open3d", str(root), "--out", str(tmp_path / "ok")]) == 0
+    assert f"poses from {log}" in capsys.readouterr().err
+    assert load_scene(tmp_path / "ok").cameras.c2w.shape == (len(stems), 4, 4)
+    # Unreadable pixels are found while writing; the message names the file all the same.
+    for broken in (root / "image" / f"{stems[2]}.jpg", root / "depth" / f"{stems[3]}.png"):
+        good_bytes = broken.read_bytes()
+        broken.write_bytes(good_bytes[:40])
+        rc = cli_main(["convert", "--from", "open3d", str(root), "--out", str(tmp_path / "bad"), "--overwrite"])
+        errors = [line for line in capsys.readouterr().err.splitlines() if ": error: " in line]
+        assert rc == 2 and len(errors) == 1 and f"error: {broken}: " in errors[0], errors
+        broken.write_bytes(good_bytes)
+
+
+# --------------------------------------------------------------------------------------------- --downscale
+def write_frames(tmp_path, images, depths_mm, panoptics, confidences=None, masks=None,
+                 intrinsics=(30.0, 30.0, 24.0, 18.0)):
+    """write_scene's own input (the path every source takes): images, uint16 depth PNGs and label loaders."""
+    from lift3d.convert import FrameInput, PanopticFrame
+    from lift3d.data.scene import Segment
+
+    src = tmp_path / "src"
+    src.mkdir(exist_ok=True)
+    frames = []
+    for k, (img, depth, pan) in enumerate(zip(images, depths_mm, panoptics)):
+        cv2.imwrite(str(src / f"f{k}.png"), cv2.cvtColor(img, cv2.COLOR_RGB2BGR))
+        cv2.imwrite(str(src / f"d{k}.png"), depth.astype(np.uint16))
+        mask_path = None
+        if masks is not None:
+            mask_path = src / f"m{k}.png"
+            cv2.imwrite(str(mask_path), masks[k].astype(np.uint8) * 255)
+        conf = None if confidences is None else confidences[k]
+        segments = [Segment(int(i), 1 + int(i) % 2, 1.0) for i in np.unique(pan) if i != 0]
+        frames.append(FrameInput(
+            name=f"f{k}", image_path=src / f"f{k}.png", c2w_opencv=np.eye(4), pose_source=src,
+            intrinsics=intrinsics, intrinsics_size=None, depth_path=src / f"d{k}.png", mask_path=mask_path,
+            labels=lambda pan=pan, conf=conf, segments=segments: PanopticFrame(pan.copy(), segments, conf, src)))
+    return frames
+
+
+TWO_CLASSES = [Category(1, "wall", False), Category(2, "chair", True)]
+
+
+@pytest.mark.parametrize("n", [2, 4, 5])
+def test_downscaled_depth_is_the_value_at_the_block_centre(tmp_path, n):
+    from lift3d.convert import write_scene
+
+    h, w = 36, 48  # not a multiple of 5: the last columns and rows are dropped, nothing is shifted
+    # A linear depth ramp sampled at pixel centres (c + 0.5, r + 0.5), in mm; whole numbers for any block.
+    ramp = lambda x, y: 1000.0 + 10.0 * x + 4.0 * y  # noqa: E731
+    cols, rows = np.meshgrid(np.arange(w) + 0.5, np.arange(h) + 0.5)
+    depth = ramp(cols, rows)
+    holes = depth.copy()
+    holes[:n, :n] = 0                       # a block without depth stays without depth
+    holes[n:2 * n, n:2 * n:2] = 0           # a block with holes: the median of what is left
+    frames = write_frames(tmp_path, [np.zeros((h, w, 3), np.uint8)] * 2, [depth, holes],
+                          [np.ones((h, w), np.int64)] * 2)
+    full = write_scene(tmp_path / "full", frames, TWO_CLASSES, options=QUIET)
+    small = write_scene(tmp_path / "small", frames, TWO_CLASSES, options=WriteOptions(downscale=n, progress=False))
+    nh, nw = h // n, w // n
+    assert small.image(0).shape == (nh, nw, 3)
+    col, row = (a.ravel() for a in np.meshgrid(np.arange(nw), np.arange(nh)))
+    uv = np.stack([col + 0.5, row + 0.5], -1)  # output pixel centres
+    # The ray through an output pixel centre is the full-size ray through its block's centre (normalized_coords
+    # takes pixel indices and adds the 0.5 itself) ...
+    np.testing.assert_allclose(small.cameras.normalized_coords(0, col, row),
+                               full.cameras.normalized_coords(0, n * uv[:, 0] - 0.5, n * uv[:, 1] - 0.5), atol=1e-12)
+    # ... and the depth there is the ramp's value at that centre (1 mm units, so exact).
+    expected = ramp(n * uv[:, 0], n * uv[:, 1]).reshape(nh, nw) / 1000.0
+    np.testing.assert_allclose(small.depth(0), expected, atol=1e-6)
+    got = small.depth(1)
+    assert got[0, 0] == 0.0
+    block = holes[n:2 * n, n:2 * n]
+    assert got[1, 1] == pytest.approx(np.median(block[block > 0]) / 1000.0, abs=1e-6)
+    np.testing.assert_allclose(got[2:, 2:], expected[2:, 2:], atol=1e-6)
+
+
+def test_downscaled_label_edges_stay_on_the_image_edges(tmp_path):
+    from lift3d.convert import write_scene
+
+    h, w, n = 32, 48, 4
+    cols = np.arange(w)[None].repeat(h, 0)
+    rows = np.arange(h)[:, None].repeat(w, 1)
+    # A vertical edge 1 px right of a block boundary (top half) and 1 px left of one (bottom half), and a
+    # horizontal one 1 px below a boundary; labels have their edges exactly where the image has its own.
+    right = np.where(rows < 16, cols >= 17, cols >= 23) | (rows >= 29)
+    image = np.where(right[..., None], np.uint8(200), np.uint8(20)).repeat(3, -1)
+    pan = np.where(right, 41601, 7).astype(np.int64)       # ids past 8 bits stay exact
+    confidence = np.where(right, 0.9, 0.1).astype(np.float32)
+    ignore = np.zeros((h, w), bool)
+    ignore[:, :2] = True        # whole-block halves: a tie, ignored
+    ignore[:, 4:7] = True       # three of four columns: ignored
+    frames = write_frames(tmp_path, [image], [np.full((h, w), 1500)], [pan], [confidence], [ignore])
+    small = write_scene(tmp_path / "small", frames, TWO_CLASSES, options=WriteOptions(downscale=n, progress=False))
+    img = small.image(0)[..., 0].astype(float)
+    labels = small.pseudo_labels(0)
+    # Each output label is the one whose colour the block's mean colour is nearer to.
+    nearer_right = np.abs(img - 200) < np.abs(img - 20)
+    np.testing.assert_array_equal(labels.segment, np.where(nearer_right, 41601, 7))
+    assert labels.segment[0, 4] == 41601 and labels.segment[-1, 0] == 41601  # sampling top-left gives 7 here
+    # Confidence is the block mean; it is multiplied by the segment's score (1 here).
+    np.testing.assert_allclose(labels.confidence, block_mean_reference(confidence, n), atol=1e-4)
+    # mask_path: 0 = ignore
+    assert not small.mask(0)[:, 0].any() and not small.mask(0)[:, 1].any() and small.mask(0)[:, 2:].all()
+
+
+def block_mean_reference(arr, n):
+    h, w = arr.shape[0] // n * n, arr.shape[1] // n * n
+    return arr[:h, :w].reshape(h // n, n, w // n, n).mean(axis=(1, 3))
 
 
 # --------------------------------------------------------------------------------------------- bad input

@@ -535,10 +535,30 @@ def test_panoptic_json_not_coco(tiny_scene: Path) -> None:
 
 
 def test_no_pseudo_labels_at_all(tiny_scene: Path) -> None:
+    """A scene written to be labelled afterwards loads (images, poses, depth); reading labels names the frame."""
     (tiny_scene / "panoptic.json").unlink()
     shutil.rmtree(tiny_scene / "panoptic")
     _edit_json(tiny_scene / "transforms.json", lambda m: [f.pop("panoptic_file_path") for f in m["frames"]])
-    _expect_error(lambda: load_scene(tiny_scene), tiny_scene / "transforms.json", "no frame has pseudo-labels")
+    scene = load_scene(tiny_scene)
+    assert not scene.has_pseudo_labels and scene.has_gt and scene.depth(0) is not None
+    scene.validate()
+    _expect_error(lambda: scene.pseudo_labels(1), tiny_scene / "transforms.json",
+                  "frame 'images/frame_001.png' has no pseudo-labels")
+    # Without ground truth either, it needs no categories.
+    shutil.rmtree(tiny_scene / "gt")
+    _edit_json(tiny_scene / "transforms.json", lambda m: [f.pop("gt_panoptic_file_path") for f in m["frames"]])
+    for categories in ([], None):
+        _edit_json(tiny_scene / "transforms.json",
+                   lambda m: m.__setitem__("categories", categories) if categories is not None else m.pop("categories"))
+        assert load_scene(tiny_scene).categories == []
+
+
+def test_labels_without_categories(tiny_scene: Path) -> None:
+    _edit_json(tiny_scene / "transforms.json", lambda m: m.__setitem__("categories", []))
+    _expect_error(lambda: load_scene(tiny_scene), tiny_scene / "transforms.json", "categories: must be a non-empty")
+    _edit_json(tiny_scene / "transforms.json", lambda m: m.pop("categories"))
+    _edit_json(tiny_scene / "panoptic.json", lambda c: c.pop("categories"))
+    _expect_error(lambda: load_scene(tiny_scene), tiny_scene / "transforms.json", "categories: missing")
 
 
 @pytest.mark.parametrize("box, fragment", [

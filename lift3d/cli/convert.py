@@ -1,4 +1,5 @@
-"""``lift3d convert --from colmap|nerfstudio|panoptic-lifting|scannet SRC --out DIR``: other inputs into a scene folder.
+"""``lift3d convert --from colmap|nerfstudio|open3d|panoptic-lifting|scannet SRC --out DIR``: other inputs
+into a scene folder.
 
 See ``docs/convert.md`` for the folder layouts each source expects and the conventions they follow.
 """
@@ -16,6 +17,7 @@ EPILOG = """examples:
   lift3d convert --from scannet scans/scene0423_02 --predictions preds/scene0423_02 \\
       --categories classes.json --out scenes/scene0423_02 --downscale 2
   lift3d convert --from panoptic-lifting data/replica/room_0 --out scenes/room_0
+  lift3d convert --from open3d livingroom1 --intrinsic primesense --out scenes/livingroom1 --depth-as-gt
 """
 
 
@@ -23,7 +25,8 @@ def add_parser(subparsers: argparse._SubParsersAction, verb: str) -> argparse.Ar
     """Create the ``convert`` sub-command."""
     p = subparsers.add_parser(
         verb,
-        help="convert COLMAP, nerfstudio/instant-ngp, Panoptic Lifting or ScanNet-style inputs into a scene folder",
+        help="convert COLMAP, nerfstudio/instant-ngp, Open3D RGB-D, Panoptic Lifting or ScanNet-style inputs into a "
+             "scene folder",
         description="Convert posed images plus 2D panoptic predictions from another layout into lift3d's "
                     "scene folder (transforms.json with OpenGL camera-to-world poses, COCO panoptic "
                     "pseudo-labels, optional ground truth and depth). The result is read back to check it.",
@@ -31,12 +34,13 @@ def add_parser(subparsers: argparse._SubParsersAction, verb: str) -> argparse.Ar
         formatter_class=argparse.RawDescriptionHelpFormatter,
     )
     p.add_argument("--from", dest="source", required=True,
-                   choices=["colmap", "nerfstudio", "instant-ngp", "panoptic-lifting", "scannet"],
+                   choices=["colmap", "nerfstudio", "instant-ngp", "open3d", "panoptic-lifting", "scannet"],
                    help="the layout of SRC (instant-ngp is the nerfstudio reader: one reader for both tools' "
                         "transforms.json)")
     p.add_argument("src", metavar="SRC", type=Path,
                    help="colmap: a sparse model folder or a workspace holding sparse/0, sparse or "
                         "colmap/sparse/0; nerfstudio: a transforms.json or the folder holding one; "
+                        "open3d: the dataset folder (image/ or color/, depth/); "
                         "panoptic-lifting / scannet: the scene folder")
     p.add_argument("--out", required=True, type=Path, metavar="DIR", help="output scene folder")
     p.add_argument("--images", type=Path, metavar="DIR",
@@ -44,8 +48,17 @@ def add_parser(subparsers: argparse._SubParsersAction, verb: str) -> argparse.Ar
                         "SRC/images, else an images/ folder beside the model folder or up to three levels "
                         "above it)")
     p.add_argument("--predictions", type=Path, metavar="DIR",
-                   help="colmap, nerfstudio, scannet (required): 2D panoptic predictions per image, matched by file "
-                        "stem: COCO panoptic (panoptic.json + PNGs) or semantic/ + instance/ PNG folders")
+                   help="colmap, nerfstudio (required), open3d, scannet: 2D panoptic predictions per image, matched by "
+                        "file stem: COCO panoptic (panoptic.json + PNGs) or semantic/ + instance/ PNG folders; "
+                        "without them open3d and scannet write a scene without pseudo-labels, for lift3d label")
+    p.add_argument("--intrinsic", metavar="FILE|primesense",
+                   help="open3d: an Open3D PinholeCameraIntrinsic JSON (width, height, intrinsic_matrix), or "
+                        "'primesense' for Open3D's PrimeSense default (640x480, fx=fy=525, cx=319.5, cy=239.5) "
+                        "(default: SRC/intrinsic.json)")
+    p.add_argument("--poses", type=Path, metavar="FILE",
+                   help="open3d: camera-to-world poses, a trajectory .log or an Open3D PoseGraph / "
+                        "PinholeCameraTrajectory .json, paired with the colour frames in order (default: "
+                        "SRC/trajectory.log, else SRC/scene/trajectory.log, else the only SRC/*/trajectory.log)")
     p.add_argument("--categories", type=Path, metavar="FILE",
                    help="JSON list of COCO panoptic categories {id, name, isthing, color} (or a COCO panoptic "
                         "JSON holding one); needed when the predictions carry none, unless --things is given")
@@ -64,7 +77,11 @@ def add_parser(subparsers: argparse._SubParsersAction, verb: str) -> argparse.Ar
     p.add_argument("--no-gt", action="store_true",
                    help="panoptic-lifting: ignore rs_semantics/ + rs_instance/ ground truth")
     p.add_argument("--no-depth", action="store_true",
-                   help="nerfstudio, panoptic-lifting, scannet: ignore the depth maps")
+                   help="nerfstudio, open3d, panoptic-lifting, scannet: ignore the depth maps")
+    p.add_argument("--depth-as-gt", action="store_true",
+                   help="nerfstudio, open3d, panoptic-lifting, scannet: keep the depth maps for evaluation only "
+                        "(gt_depth_file_path: lift3d eval scores rendered depth against them); training then uses "
+                        "the images alone")
     p.add_argument("--depth-scale", type=float, default=1e-3, metavar="M",
                    help="metres per unit of the uint16 depth PNGs, in the input and the output "
                         "(default: %(default)s = millimetres)")
@@ -77,7 +94,8 @@ def add_parser(subparsers: argparse._SubParsersAction, verb: str) -> argparse.Ar
                    help="colmap: do not keep points3D.txt|bin as the scene's sparse points (kept by default "
                         "as sparse/points3D.ply + sparse/observations.npz; see docs/scene-format.md)")
     p.add_argument("--downscale", type=int, default=1, metavar="N",
-                   help="shrink images, labels and depth by N (intrinsics follow) (default: %(default)s)")
+                   help="shrink images, labels and depth by N: each output pixel is one NxN block (mean colour, "
+                        "majority label, median valid depth; intrinsics divided by N) (default: %(default)s)")
     p.add_argument("--image-format", choices=["png", "jpg"], default="png",
                    help="format of the written images (default: %(default)s, lossless)")
     p.add_argument("--overwrite", action="store_true",
@@ -100,8 +118,10 @@ def run(args: argparse.Namespace) -> int:
         raise InputError("--depth-scale", "must be positive")
     categories = load_categories(args.categories) if args.categories is not None else None
     things = parse_id_list(args.things, "--things")
+    if args.depth_as_gt and args.no_depth:
+        raise InputError("--depth-as-gt", "keeps the depth maps that --no-depth leaves out: give one of them")
     options = WriteOptions(downscale=args.downscale, image_ext=f".{args.image_format}",
-                           depth_scale=args.depth_scale, overwrite=args.overwrite)
+                           depth_scale=args.depth_scale, overwrite=args.overwrite, depth_as_gt=args.depth_as_gt)
     _reject_foreign_flags(args)
 
     if args.source == "colmap":
@@ -122,12 +142,17 @@ def run(args: argparse.Namespace) -> int:
         scene = nerfstudio.convert(args.src, args.out, predictions=args.predictions, categories=categories,
                                    things=things, test_every=args.test_every, use_depth=not args.no_depth,
                                    options=options)
+    elif args.source == "open3d":
+        # here, not at module level: keeps `lift3d --help` cheap
+        from lift3d.convert import open3d_rgbd
+
+        scene = open3d_rgbd.convert(args.src, args.out, intrinsic=args.intrinsic, poses=args.poses,
+                                    predictions=args.predictions, categories=categories, things=things,
+                                    test_every=args.test_every, use_depth=not args.no_depth, options=options)
     elif args.source == "scannet":
         # here, not at module level: keeps `lift3d --help` cheap
         from lift3d.convert import scannet
 
-        if args.predictions is None:
-            raise InputError("--predictions", "required with --from scannet (2D panoptic predictions per image)")
         scene = scannet.convert(args.src, args.out, predictions=args.predictions, categories=categories,
                                 things=things, test_every=args.test_every, use_depth=not args.no_depth,
                                 intrinsics_size=scannet.parse_size(args.intrinsics_size), options=options)
@@ -149,9 +174,12 @@ _ONLY_FOR = {
     "images": ("--images", {"colmap"}),
     "scene_box": ("--scene-box", {"colmap"}),
     "no_points": ("--no-points", {"colmap"}),
-    "predictions": ("--predictions", {"colmap", "nerfstudio", "instant-ngp", "scannet"}),
+    "predictions": ("--predictions", {"colmap", "nerfstudio", "instant-ngp", "open3d", "scannet"}),
+    "intrinsic": ("--intrinsic", {"open3d"}),
+    "poses": ("--poses", {"open3d"}),
     "intrinsics_size": ("--intrinsics-size", {"scannet", "panoptic-lifting"}),
-    "no_depth": ("--no-depth", {"nerfstudio", "instant-ngp", "scannet", "panoptic-lifting"}),
+    "no_depth": ("--no-depth", {"nerfstudio", "instant-ngp", "open3d", "scannet", "panoptic-lifting"}),
+    "depth_as_gt": ("--depth-as-gt", {"nerfstudio", "instant-ngp", "open3d", "scannet", "panoptic-lifting"}),
     "no_gt": ("--no-gt", {"panoptic-lifting"}),
     "no_confidence": ("--no-confidence", {"panoptic-lifting"}),
 }

@@ -1,9 +1,10 @@
 """``lift3d convert``: other capture layouts into the scene folder of docs/scene-format.md.
 
 Every source reader (:mod:`~lift3d.convert.colmap`, :mod:`~lift3d.convert.panoptic_lifting`,
-:mod:`~lift3d.convert.scannet`) only *describes* its frames as :class:`FrameInput` records: where the image
-is, its camera-to-world pose in **OpenCV** axes, its intrinsics and a loader for its 2D panoptic
-pseudo-labels. :func:`write_scene` then does the work that is the same for all of them, in one place:
+:mod:`~lift3d.convert.scannet`, :mod:`~lift3d.convert.open3d_rgbd`) only *describes* its frames as
+:class:`FrameInput` records: where the image is, its camera-to-world pose in **OpenCV** axes, its intrinsics
+and a loader for its 2D panoptic pseudo-labels. :func:`write_scene` then does the work that is the same for
+all of them, in one place:
 
 * reads each image and checks (or rescales) the intrinsics against its real size,
 * converts the pose to ``transforms.json``'s OpenGL camera-to-world with
@@ -14,7 +15,7 @@ pseudo-labels. :func:`write_scene` then does the work that is the same for all o
 
 Pixel convention: lift3d puts pixel ``(c, r)``'s centre at ``(c + 0.5, r + 0.5)`` (as COLMAP does). Readers
 whose source puts pixel centres on integer coordinates (ScanNet calibration files, Panoptic Lifting's ray
-generation) add 0.5 to ``cx, cy`` before building their :class:`FrameInput`.
+generation, Open3D) add 0.5 to ``cx, cy`` before building their :class:`FrameInput`.
 """
 
 from __future__ import annotations
@@ -29,6 +30,7 @@ from typing import Callable, Iterable, Sequence
 import cv2
 import numpy as np
 
+from lift3d.convert import downscale
 from lift3d.data.cameras import is_rigid, opencv_to_opengl
 from lift3d.data.images import read_depth, read_label_map, read_rgb, write_label_map
 from lift3d.data.scene import Category, Scene, SceneWriter, Segment, load_scene
@@ -40,6 +42,7 @@ SOURCES = {
     "colmap": "lift3d.convert.colmap",
     "nerfstudio": "lift3d.convert.nerfstudio",
     "instant-ngp": "lift3d.convert.nerfstudio",  # the same reader: the file's keys tell the two dialects apart
+    "open3d": "lift3d.convert.open3d_rgbd",
     "panoptic-lifting": "lift3d.convert.panoptic_lifting",
     "scannet": "lift3d.convert.scannet",
 }
@@ -95,8 +98,9 @@ class FrameInput:
         size with the same aspect ratio, the intrinsics are scaled to it.
     distortion : dict
         Distortion coefficients by name (``k1 k2 p1 p2 k3`` or fisheye ``k1 k2 k3 k4``); empty for pinhole.
-    labels : callable
-        Returns the frame's :class:`PanopticFrame` pseudo-labels (called once, when the frame is written).
+    labels : callable or None
+        Returns the frame's :class:`PanopticFrame` pseudo-labels (called once, when the frame is written);
+        None writes the frame without pseudo-labels, for ``lift3d label`` to add.
     gt : callable or None
         Returns ground-truth labels with scene-consistent segment ids, or None.
     depth_path : Path or None
@@ -115,7 +119,7 @@ class FrameInput:
     pose_source: Path
     intrinsics: tuple[float, float, float, float]
     intrinsics_size: tuple[int, int] | None
-    labels: Callable[[], PanopticFrame]
+    labels: Callable[[], PanopticFrame] | None
     distortion: dict[str, float] = field(default_factory=dict)
     gt: Callable[[], PanopticFrame] | None = None
     depth_path: Path | None = None
@@ -125,13 +129,17 @@ class FrameInput:
 
 @dataclass
 class WriteOptions:
-    """Options shared by every source (see ``lift3d convert --help``)."""
+    """Options shared by every source (see ``lift3d convert --help``).
+
+    ``depth_as_gt`` writes the source's depth maps as the frames' ``gt_depth_file_path`` (evaluation only)
+    instead of ``depth_file_path`` (which training reads)."""
 
     downscale: int = 1
     image_ext: str = ".png"
     depth_scale: float = 1e-3
     overwrite: bool = False
     progress: bool = True
+    depth_as_gt: bool = False
 
 
 def note(message: str) -> None:
@@ -295,7 +303,8 @@ def write_scene(
     frames : sequence of FrameInput
         The frames, in output order.
     categories : sequence of Category
-        Label vocabulary (every category id the labels use must be in it).
+        Label vocabulary (every category id the labels use must be in it); may be empty when no frame has
+        labels.
     camera_model : str
         ``PINHOLE``, ``OPENCV`` or ``OPENCV_FISHEYE`` (one model for the whole scene).
     splits : dict, optional
@@ -328,6 +337,8 @@ def write_scene(
                                                        "frames are named by stem, so stems must be unique")
     if opts.downscale < 1:
         raise InputError("--downscale", "must be a positive integer")
+    if opts.depth_as_gt and not any(f.depth_path is not None for f in frames):
+        raise InputError("--depth-as-gt", "the source has no depth maps to keep for evaluation")
     _clear_outputs(out, opts.overwrite)
 
     cat_ids = {c.id for c in categories}
@@ -335,13 +346,15 @@ def write_scene(
     writer = SceneWriter(out, list(categories), image_ext=opts.image_ext, depth_unit_scale_factor=opts.depth_scale,
                          camera_model=camera_model, extra_meta=extra_meta)
     resized_labels = 0
+    cropped: tuple[int, int, int] | None = None
     for fr in progress_bar(frames, desc="convert frames", unit="frame", disable=not opts.progress):
         image = read_rgb(fr.image_path)
         h, w = image.shape[:2]
         fx, fy, cx, cy = _scaled_intrinsics(fr, w, h)
 
-        labels = fr.labels()
-        _check_categories(labels, cat_ids)
+        labels = fr.labels() if fr.labels is not None else None
+        if labels is not None:
+            _check_categories(labels, cat_ids)
         gt = fr.gt() if fr.gt is not None else None
         if gt is not None:
             _check_categories(gt, cat_ids)
@@ -358,7 +371,7 @@ def write_scene(
                 lab.panoptic = _resize(lab.panoptic, (w, h), cv2.INTER_NEAREST)
                 if lab.confidence is not None:
                     lab.confidence = _resize(lab.confidence.astype(np.float32), (w, h), cv2.INTER_LINEAR)
-        if labels.confidence is not None and labels.confidence.shape != (h, w):
+        if labels is not None and labels.confidence is not None and labels.confidence.shape != (h, w):
             labels.confidence = _resize(labels.confidence.astype(np.float32), (w, h), cv2.INTER_LINEAR)
         if depth is not None and depth.shape != (h, w):
             depth = _resize(depth, (w, h), cv2.INTER_NEAREST)
@@ -366,31 +379,39 @@ def write_scene(
             mask = _resize(mask.astype(np.uint8), (w, h), cv2.INTER_NEAREST) > 0
 
         if opts.downscale > 1:
-            nw, nh = max(1, round(w / opts.downscale)), max(1, round(h / opts.downscale))
-            sx, sy = nw / w, nh / h
-            image = cv2.resize(image, (nw, nh), interpolation=cv2.INTER_AREA)
-            fx, fy, cx, cy = fx * sx, fy * sy, cx * sx, cy * sy
+            # Each output pixel is one N x N block of every map, so labels and depth stay on the image's
+            # pixel centres (lift3d.convert.downscale says how each kind of map is reduced).
+            n = opts.downscale
+            if w < n or h < n:
+                raise InputError(fr.image_path, f"image is {w}x{h}, smaller than one --downscale {n} block")
+            if (w % n or h % n) and not cropped:
+                cropped = (w % n, h % n, n)
+            image = downscale.block_mean(image, n)
+            fx, fy, cx, cy = fx / n, fy / n, cx / n, cy / n
             for lab in (labels, gt):
                 if lab is not None:
-                    lab.panoptic = _resize(lab.panoptic, (nw, nh), cv2.INTER_NEAREST)
+                    lab.panoptic = downscale.block_majority(lab.panoptic, n)
                     if lab.confidence is not None:
-                        lab.confidence = _resize(lab.confidence.astype(np.float32), (nw, nh), cv2.INTER_AREA)
+                        lab.confidence = downscale.block_mean(lab.confidence.astype(np.float32), n)
             if depth is not None:
-                depth = _resize(depth, (nw, nh), cv2.INTER_NEAREST)
+                depth = downscale.block_median_depth(depth, n)
             if mask is not None:
-                mask = _resize(mask.astype(np.uint8), (nw, nh), cv2.INTER_NEAREST) > 0
+                # The majority of the block decides; a tie goes to the smaller value, 0 = ignore.
+                mask = downscale.block_majority((~mask).astype(np.uint8), n) == 0
 
         c2w = opencv_to_opengl(fr.c2w_opencv)
         if not is_rigid(c2w, atol=1e-3):
             raise InputError(fr.pose_source, f"pose of {fr.name!r} is not a rigid transform")
         confidence = None
-        if labels.confidence is not None:
+        if labels is not None and labels.confidence is not None:
             confidence = np.clip(np.nan_to_num(labels.confidence.astype(np.float32), nan=0.0), 0.0, 1.0)
         file_paths[fr.name] = writer.add_frame(
             fr.name, image, c2w, (fx, fy, cx, cy),
-            panoptic=labels.panoptic, segments=labels.segments, confidence=confidence,
+            panoptic=None if labels is None else labels.panoptic, segments=() if labels is None else labels.segments,
+            confidence=confidence,
             gt_panoptic=None if gt is None else gt.panoptic, gt_segments=() if gt is None else gt.segments,
-            depth=depth, distortion=fr.distortion or None,
+            depth=None if opts.depth_as_gt else depth, gt_depth=depth if opts.depth_as_gt else None,
+            distortion=fr.distortion or None,
         )
         if mask is not None:
             # SceneWriter.add_frame has no mask argument yet; nerfstudio's mask_path convention is
@@ -400,6 +421,9 @@ def write_scene(
             writer.frames[-1]["mask_path"] = rel
     if resized_labels:
         note(f"{resized_labels} label maps were not at their image's size and were resized (nearest neighbour)")
+    if cropped:
+        note(f"--downscale {cropped[2]}: images lose their last {cropped[0]} column(s) and {cropped[1]} row(s) so "
+             "that every output pixel is a whole block")
 
     if splits:
         lists = {k: [file_paths[n] for n in v if n in file_paths] for k, v in splits.items()}
@@ -413,7 +437,8 @@ def write_scene(
     scene = load_scene(out)
     # Decode one frame completely: load_scene checks paths and JSON, this checks pixels and ids agree.
     scene.image(0)
-    scene.pseudo_labels(0)
+    if scene.has_pseudo_labels:
+        scene.pseudo_labels(0)
     if scene.frames[0].gt_panoptic_path is not None:
         scene.gt_labels(0)
     return scene
@@ -429,14 +454,19 @@ def _check_categories(labels: PanopticFrame, cat_ids: set[int]) -> None:
 def summary(scene: Scene) -> str:
     """One line describing a converted scene (printed by the CLI)."""
     n_things = len(scene.thing_ids)
-    parts = [f"{len(scene)} frames",
-             f"{len(scene.categories)} categories ({n_things} thing{'' if n_things == 1 else 's'})"]
+    parts = [f"{len(scene)} frames"]
+    if scene.has_pseudo_labels:
+        parts.append(f"{len(scene.categories)} categories ({n_things} thing{'' if n_things == 1 else 's'})")
+    else:
+        parts.append("no pseudo-labels yet (lift3d label adds them; training needs them)")
     parts.append("splits " + ", ".join(f"{k} {len(scene.splits[k])}" for k in ("train", "val", "test")
                                        if k in scene.splits))
     if scene.has_gt:
         parts.append("ground truth")
     if scene.has_depth:
         parts.append("depth")
+    if all(f.gt_depth_path is not None for f in scene.frames):
+        parts.append("depth for evaluation only (gt_depth_file_path)")
     if scene.sparse_points_paths is not None:
         sparse = scene.sparse_points()
         parts.append(f"{len(sparse)} sparse points (median error {sparse.median_error:.2f} px)")

@@ -496,8 +496,8 @@ def sparse_points_from_colmap(points: ColmapPoints, model: ColmapModel, scene: S
     """COLMAP's points as the scene's sparse points (call :func:`check_points` first).
 
     Keypoint positions keep COLMAP's pixel convention (the same as lift3d's), scaled when the written
-    images were resized. Depth and its sigma per observation come from the scene's cameras with the same
-    formula as ``lift3d triangulate`` (:func:`lift3d.sfm.triangulation.observation_depths`). Observations
+    images were resized or downscaled. Depth and its sigma per observation come from the scene's cameras with
+    the same formula as ``lift3d triangulate`` (:func:`lift3d.sfm.triangulation.observation_depths`). Observations
     behind their camera are left out, and points left with fewer than two observations; both are counted
     in ``info["dropped"]``.
     """
@@ -512,7 +512,10 @@ def sparse_points_from_colmap(points: ColmapPoints, model: ColmapModel, scene: S
         cam = model.cameras[img.camera_id]
         sel = points.track_image == iid
         f = frame_of_image[int(iid)]
-        scale = np.array([cams.width[f] / cam.width, cams.height[f] / cam.height])
+        # The written focal lengths over COLMAP's: pixel coordinates (corner origin) scale with them through
+        # any resize of the images on disk and any --downscale (which may also crop the last rows/columns).
+        _, (fx, fy, _, _), _ = camera_to_lift3d(cam, model.path)
+        scale = np.array([cams.fx[f] / fx, cams.fy[f] / fy])
         uv[sel] = img.xys[points.track_point2d[sel]] * scale
         ideal[sel] = ideal_pixels(cams, f, uv[sel])
     r, t = world_to_camera(cams)

@@ -6,7 +6,8 @@
       intrinsic/intrinsic_color.txt      4x4 (or 3x3) K of the colour camera
       depth/<n>.png                      optional uint16 depth, millimetres (--depth-scale)
 
-with 2D panoptic predictions from ``--predictions`` (see :mod:`lift3d.convert.predictions`).
+with 2D panoptic predictions from ``--predictions`` (see :mod:`lift3d.convert.predictions`), or without any,
+for ``lift3d label`` to add afterwards.
 
 Conventions checked against Panoptic Lifting's loader, which reads this same layout: poses are used as
 camera-to-world with rays ``((i - cx) / fx, (j - cy) / fy, 1)`` for pixel column ``i`` and row ``j`` — OpenCV
@@ -109,7 +110,7 @@ def convert(
     src: str | Path,
     out: str | Path,
     *,
-    predictions: str | Path,
+    predictions: str | Path | None,
     categories: list[Category] | None = None,
     things: list[int] | None = None,
     test_every: int = 8,
@@ -125,8 +126,9 @@ def convert(
         The ScanNet-style folder (module docstring).
     out : str or Path
         Output scene folder.
-    predictions : str or Path
-        2D panoptic predictions, matched to ``color/`` images by stem.
+    predictions : str or Path or None
+        2D panoptic predictions, matched to ``color/`` images by stem; None writes a scene without
+        pseudo-labels (``lift3d label`` adds them).
     categories, things
         As for :func:`lift3d.convert.colmap.convert`.
     test_every : int
@@ -148,20 +150,33 @@ def convert(
         note(f"{skipped} frames have an invalid (-inf) pose and are left out")
     if not frames_raw:
         raise InputError(root / "pose", "no frame has a valid pose")
-    preds = PredictionFolder(predictions, categories, things)
     stems = [s for s, _, _ in frames_raw]
-    preds.check(stems)
-    cats = preds.resolve_categories(stems, progress=options.progress if options else True)
+    preds, cats = prediction_folder(predictions, categories, things, stems, options)
     frames = []
     for stem, img, c2w in frames_raw:
         depth = root / "depth" / f"{stem}.png"
         frames.append(FrameInput(
             name=stem, image_path=img, c2w_opencv=c2w, pose_source=root / "pose" / f"{stem}.txt",
-            intrinsics=intr, intrinsics_size=intrinsics_size, labels=_labels_of(preds, stem),
+            intrinsics=intr, intrinsics_size=intrinsics_size, labels=_labels_of(preds, stem) if preds else None,
             depth_path=depth if use_depth and depth.is_file() else None,
         ))
     return write_scene(out, frames, cats, camera_model="PINHOLE", splits=split_every(stems, test_every),
                        options=options, extra_meta={"converted_from": {"source": "scannet", "path": str(root)}})
+
+
+def prediction_folder(predictions: str | Path | None, categories: list[Category] | None, things: list[int] | None,
+                      stems: list[str], options: WriteOptions | None) -> tuple[PredictionFolder | None, list[Category]]:
+    """The checked predictions folder and its categories; ``(None, [])`` without predictions (then the
+    categories are for ``lift3d label`` to choose, and giving some is a mistake worth saying)."""
+    if predictions is None:
+        if categories is not None or things is not None:
+            raise InputError("--categories" if categories is not None else "--things",
+                             "only used with --predictions (lift3d label sets the categories of a scene without "
+                             "pseudo-labels)")
+        return None, []
+    preds = PredictionFolder(predictions, categories, things)
+    preds.check(stems)
+    return preds, preds.resolve_categories(stems, progress=options.progress if options else True)
 
 
 def _labels_of(preds: PredictionFolder, stem: str) -> Callable:

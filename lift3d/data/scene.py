@@ -180,6 +180,12 @@ class Scene:
     def has_depth(self) -> bool:
         return all(f.depth_path is not None for f in self.frames)
 
+    @property
+    def has_pseudo_labels(self) -> bool:
+        """Whether the frames carry 2D pseudo-labels; False for a scene written to be labelled afterwards
+        (``lift3d label``), which loads (images, poses, depth) but cannot be trained on."""
+        return any(f.panoptic_path is not None or f.semantic_path is not None for f in self.frames)
+
     def split(self, name: str) -> np.ndarray:
         """Frame indices of split ``name`` (``train``, ``val`` or ``test``)."""
         if name not in self.splits:
@@ -370,7 +376,8 @@ class Scene:
         """Decode every file once and raise on the first problem (sizes, ids, readability)."""
         for i in progress_bar(range(len(self)), desc="validate scene", disable=not progress):
             self.image(i)
-            self.pseudo_labels(i)
+            if self.has_pseudo_labels:
+                self.pseudo_labels(i)
             if self.frames[i].gt_panoptic_path is not None:
                 self.gt_labels(i)
             self.depth(i)
@@ -573,18 +580,22 @@ def load_scene(root: str | Path) -> Scene:
         raise InputError(tpath, "distortion_params: not read; give the coefficients by name (k1 k2 k3 k4 p1 p2), "
                                 "or convert the file with `lift3d convert --from nerfstudio`")
 
-    # Categories: transforms.json first, else the COCO panoptic JSON's own list.
+    # Categories: transforms.json first, else the COCO panoptic JSON's own list. A scene without any labels
+    # yet (written to be labelled afterwards) may have none, or an empty list.
     pan_json_path = root / str(meta.get("panoptic_json", "panoptic.json"))
     pan_json = read_json(pan_json_path) if pan_json_path.is_file() else None
-    if "categories" in meta:
-        categories = parse_categories(meta["categories"], tpath)
-    elif isinstance(pan_json, dict) and "categories" in pan_json:
-        categories = parse_categories(pan_json["categories"], pan_json_path)
+    gt_json_path = root / "gt" / "panoptic.json"
+    if meta.get("categories", []) != [] or not _without_labels(root, meta, pan_json, gt_json_path):
+        if "categories" in meta:
+            categories = parse_categories(meta["categories"], tpath)
+        elif isinstance(pan_json, dict) and "categories" in pan_json:
+            categories = parse_categories(pan_json["categories"], pan_json_path)
+        else:
+            raise InputError(tpath, "categories: missing (and panoptic.json has none)")
     else:
-        raise InputError(tpath, "categories: missing (and panoptic.json has none)")
+        categories = []
     cat_by_id = {c.id: c for c in categories}
     segs_by_file = _segments_by_file(pan_json, pan_json_path, cat_by_id) if pan_json is not None else {}
-    gt_json_path = root / "gt" / "panoptic.json"
     gt_segs_by_file = (
         _segments_by_file(read_json(gt_json_path), gt_json_path, cat_by_id) if gt_json_path.is_file() else {}
     )
@@ -666,8 +677,6 @@ def load_scene(root: str | Path) -> Scene:
                 setattr(frame, key.replace("_file", ""), _resolve(root, fr[key], tpath, f"frames[{k}].{key}"))
         frames.append(frame)
 
-    if not any(f.panoptic_path or f.semantic_path for f in frames):
-        raise InputError(tpath, "no frame has pseudo-labels (panoptic_file_path or semantic_file_path)")
     if len({f.name for f in frames}) != len(frames):
         raise InputError(tpath, "frames: two frames share a file name stem (outputs are named by stem)")
 
@@ -714,6 +723,15 @@ def load_scene(root: str | Path) -> Scene:
         depth_unit_scale_factor=depth_scale, gt_points_path=gt_points if gt_points.is_file() else None,
         sparse_points_paths=sparse,
     )
+
+
+def _without_labels(root: Path, meta: dict, pan_json: Any, gt_json_path: Path) -> bool:
+    """Whether a scene holds no labels at all, neither pseudo-labels nor ground truth (so it needs no
+    categories): no COCO panoptic JSON, no ``panoptic/`` PNGs, no frame naming a label file."""
+    if pan_json is not None or gt_json_path.is_file() or (root / "panoptic").is_dir():
+        return False
+    keys = ("panoptic_file_path", "semantic_file_path", "gt_panoptic_file_path")
+    return not any(isinstance(fr, dict) and any(k in fr for k in keys) for fr in meta["frames"])
 
 
 def _splits(meta: dict, frames: list[Frame], where: Path) -> dict[str, np.ndarray]:

@@ -106,7 +106,8 @@ def _describe_depth(m: dict, fmt: Callable[..., str]) -> str:
         return "depth: no GT depth"
     return (f"depth abs-rel {fmt(d.get('abs_rel'))}, RMSE {fmt(d.get('rmse'))}, MAE {fmt(d.get('mae'))} "
             f"({fmt(100 * d['mae_of_diagonal'] if d.get('mae_of_diagonal') is not None else None, 2)} % of the "
-            f"diagonal), off > 0.1: {fmt(d.get('share_over_0.1'))} ({d.get('n_valid')} px{', vs exact GT depth' if d.get('reference') == 'gt_depth' else ''})")
+            f"diagonal), off > 0.1: {fmt(d.get('share_over_0.1'))} ({d.get('n_valid')} px"
+            f"{', vs GT depth maps' if d.get('reference') == 'gt_depth' else ''})")
 
 
 @frame_metric("depth", describe=_describe_depth)

@@ -90,12 +90,8 @@ def check_poses(scene: Scene) -> dict:
     # here, not at module level: keeps `import lift3d.train` cheap (OpenCV's feature code loads only here)
     from lift3d.sfm.pose_check import FIX_MEANS, check_pose_convention
 
-    def depth(i: int):
-        frame = scene.frames[i]
-        if frame.depth_path is not None:
-            return scene.depth(i)
-        return scene.gt_depth(i) if frame.gt_depth_path is not None else None
-
+    # the input depth only: depth kept for evaluation (gt_depth_file_path) stays out of training, checks included
+    depth = scene.depth if scene.has_depth else None
     check = check_pose_convention(scene.cameras, scene.split("train"), scene.image, depth, stored="opengl")
     if check.likely_fix is not None:
         raise InputError(scene.root / "transforms.json", f"{FIX_MEANS[check.likely_fix]} ({check.describe()}): "

@@ -488,6 +488,15 @@ def _remove_if_empty(path: Path, keep_below: Path) -> None:
         parent = parent.parent
 
 
+def _labelled_scene(data) -> Scene:
+    """The scene folder ``data``, which must have pseudo-labels: they are what training lifts to 3D."""
+    scene = load_scene(data)
+    if not scene.has_pseudo_labels:
+        raise InputError(scene.root, f"no pseudo-labels: run lift3d label --data {scene.root} (a segmenter or "
+                                     "imported predictions) before training, or convert with --predictions")
+    return scene
+
+
 def _train(data, preset, output_dir, overrides, resume, progress, print_summary, ctx: DistContext,
            device_name: str) -> TrainResult:
     sparse = None
@@ -499,12 +508,12 @@ def _train(data, preset, output_dir, overrides, resume, progress, print_summary,
             if "optim" in overrides and "steps" in overrides["optim"]:
                 allowed["optim"] = {"steps": overrides["optim"]["steps"]}
             cfg = update_dataclass(cfg, allowed, "command line")
-        scene = load_scene(data or cfg.scene["data"])
+        scene = _labelled_scene(data or cfg.scene["data"])
         norm = SceneNormalization.from_json(cfg.scene["normalization"])
     else:
         if data is None:
             raise InputError("--data", "a scene folder is required (or --resume RUN)")
-        scene = load_scene(data)
+        scene = _labelled_scene(data)
         pose_check = check_poses(scene)  # a pose file read with the wrong convention stops here, in one line
         # The points that say where the surfaces are size the scene space; triangulated ones are the depth
         # targets' starting points too (handed on below, not computed twice).
