@@ -41,11 +41,8 @@ from lift3d.errors import InputError
 from lift3d.label.classes import coco_sources, load_class_mapping, sources_from_categories, sources_from_labels
 from lift3d.label.geometric import (GEOMETRIC_CATEGORIES, CAPTURE_POINTS, CAPTURE_SIDE, GeometricSettings,
                                     fit_structure, frame_geometry, label_frame)
-from lift3d.label.mask2former import Mask2FormerLabeler, load_mask2former, load_mask2former_config
 from lift3d.label.predictions import convert_prediction, find_prediction, read_prediction
-from lift3d.label.tta import augmentations
 from lift3d.utils.atomic import write_bytes_atomic, write_json_atomic
-from lift3d.utils.device import resolve_device, set_threads
 from lift3d.utils.files import read_json
 from lift3d.utils.progress import progress_bar
 
@@ -364,7 +361,7 @@ def label_with_model(scene_dir: str | Path, model: str | Path, *, classes: str |
     cache_dir : str or Path, optional
         Hugging Face cache to look in.
     progress : bool
-    labeler : Mask2FormerLabeler, optional
+    labeler : lift3d.label.mask2former.Mask2FormerLabeler, optional
         A ready labeler (then ``model``, ``classes``, ``device``, thresholds and ``shortest_edge`` are unused).
 
     Returns
@@ -372,6 +369,12 @@ def label_with_model(scene_dir: str | Path, model: str | Path, *, classes: str |
     dict
         Statistics of what was written (see :func:`write_labels`) plus ``seconds``, ``classes``, ``passes``.
     """
+    # here, not at module level: only the model needs torch; this keeps `lift3d label --help` and --geometric
+    # cheap (no torch import)
+    from lift3d.label.mask2former import Mask2FormerLabeler, load_mask2former, load_mask2former_config
+    from lift3d.label.tta import augmentations
+    from lift3d.utils.device import resolve_device, set_threads
+
     t0 = time.perf_counter()
     if batch_size < 1:
         raise InputError("--batch-size", f"must be at least 1 (got {batch_size})")
@@ -645,7 +648,7 @@ def format_report(report: dict, scene_dir: str | Path) -> str:
         lab = report["labeller"]
         kinds = [p["kind"] for p in lab["planes"]]
         shares = ", ".join(f"{k} {100 * v:.1f}%" for k, v in report["class_shares"].items())
-        lines = [f"  up {np.round(lab['up'], 3).tolist()} (from {lab['up_source']}); planes: "
+        lines = [f"  up {(np.round(lab['up'], 3) + 0.0).tolist()} (from {lab['up_source']}); planes: "
                  f"{kinds.count('floor')} floor, {kinds.count('ceiling')} ceiling, {kinds.count('wall')} walls",
                  f"  pixels: {shares}"]
     return "\n".join([
