@@ -201,15 +201,17 @@ def _linked(z: np.ndarray, valid: np.ndarray, jump: float) -> np.ndarray:
     a smooth run: inverse depth is affine in the pixel coordinates on a plane, so on a surface seen at a
     grazing angle (a far floor, a ceiling) the steps of ``1 / z`` between neighbours are large but alike,
     while an occlusion edge is one step unlike those on either side of it (a step continues a run when it
-    differs from the step before or after it by at most half of itself).
+    differs from the steps before and after it by at most half of itself).
 
     Examples
     --------
-    A floor seen at a grazing angle (1/z falls by 0.2 a pixel), then a wall 0.5 m behind its edge:
+    A floor seen at a grazing angle (1/z falls by about 0.2 a pixel, a 25 % jump in depth), then a wall
+    0.5 m behind its edge: the floor's inner steps are linked, the step to the wall is not (nor are the run's
+    first and last steps):
 
-    >>> z = np.array([[1.0, 1.25, 5 / 3, 2.5, 3.0, 3.05]])
+    >>> z = np.array([[0.8, 1.0, 1.25, 5 / 3, 2.5, 3.0, 3.05]])
     >>> _linked(z, z > 0, 0.05).astype(int).tolist()
-    [[1, 1, 1, 0, 1]]
+    [[0, 1, 1, 0, 0, 1]]
     """
     both = valid[:, :-1] & valid[:, 1:]
     near = np.minimum(z[:, :-1], z[:, 1:])
@@ -223,8 +225,9 @@ def _linked(z: np.ndarray, valid: np.ndarray, jump: float) -> np.ndarray:
     with np.errstate(invalid="ignore"):
         like_before = np.abs(step - before) <= _SMOOTH_STEP * np.abs(step)
         like_after = np.abs(step - after) <= _SMOOTH_STEP * np.abs(step)
-    # One side is enough: the last step of a run is followed by the edge's own, unlike step.
-    return small | (both & (like_before | like_after))
+    # Both sides must agree: two alike large steps are a pixel mixing two surfaces across an edge, not a run.
+    # (So the first and last steps of a run stay unlinked; their pixels join the run through the rest.)
+    return small | (both & like_before & like_after)
 
 
 def frame_geometry(cameras: Cameras, i: int, depth: np.ndarray, settings: GeometricSettings,
