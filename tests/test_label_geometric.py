@@ -200,6 +200,14 @@ def test_without_ground_truth_the_vocabulary_is_replaced(room):
     assert scene.categories == list(GEOMETRIC_CATEGORIES)
 
 
+def test_cli_flags_cover_every_setting_with_its_default():
+    from lift3d.cli.label import GEOMETRIC_FLAGS
+
+    defaults = GeometricSettings().to_json()
+    assert {name: default for name, default, *_ in GEOMETRIC_FLAGS.values()} == \
+        {k: v for k, v in defaults.items() if k != "up"}  # --up is its own flag
+
+
 def test_settings_are_checked():
     with pytest.raises(InputError, match="--normal-angle: must be a number in"):
         GeometricSettings(normal_angle=0.0).check()

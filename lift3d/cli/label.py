@@ -49,29 +49,31 @@ def _vector(text: str) -> tuple[float, float, float]:
     return values  # type: ignore[return-value]
 
 
-#: --geometric settings: flag -> (GeometricSettings field, type, metavar, help); defaults come from the class.
+#: --geometric settings: flag -> (GeometricSettings field, default shown in the help, metavar, help). Only
+#: flags given are passed on, so GeometricSettings' own defaults apply; tests check the two agree. (Reading
+#: them from the class here would load lift3d.label, scipy and OpenCV for every `lift3d --help`.)
 GEOMETRIC_FLAGS = {
-    "--level-angle": ("level_angle", float, "DEG",
+    "--level-angle": ("level_angle", 15.0, "DEG",
                       "normals within this angle of up/down are level, within it of horizontal vertical: which points "
                       "may form floor, ceiling and walls"),
-    "--normal-angle": ("normal_angle", float, "DEG", "a pixel joins a plane only if its normal is within this angle"),
-    "--plane-distance": ("plane_distance", float, "SHARE",
+    "--normal-angle": ("normal_angle", 40.0, "DEG", "a pixel joins a plane only if its normal is within this angle"),
+    "--plane-distance": ("plane_distance", 0.02, "SHARE",
                          "a pixel joins a plane within this share of its depth from it (0.02: 4 cm at 2 m)"),
-    "--min-plane-share": ("min_plane_share", float, "SHARE",
+    "--min-plane-share": ("min_plane_share", 0.005, "SHARE",
                           "a floor, ceiling or wall needs this share of the capture's sampled depth points"),
-    "--wall-max-behind": ("wall_max_behind", float, "SHARE",
+    "--wall-max-behind": ("wall_max_behind", 0.1, "SHARE",
                           "a vertical plane is no wall when more points than this share of its own are seen behind "
                           "it above its top (a tall cabinet with the wall showing above it)"),
-    "--depth-jump": ("depth_jump", float, "SHARE",
+    "--depth-jump": ("depth_jump", 0.05, "SHARE",
                      "neighbours whose depths differ by more than this share are not connected (objects split there)"),
-    "--min-object-share": ("min_object_share", float, "SHARE",
+    "--min-object-share": ("min_object_share", 0.002, "SHARE",
                            "smallest object, as a share of the frame's pixels; smaller leftovers are void"),
-    "--normal-window": ("normal_window", float, "SHARE",
+    "--normal-window": ("normal_window", 0.01, "SHARE",
                         "normals are averaged over a window of this share of the image's larger side"),
-    "--on-plane-share": ("on_plane_share", float, "SHARE",
+    "--on-plane-share": ("on_plane_share", 0.5, "SHARE",
                          "a depth-connected component with this share of its pixels near a plane is part of it "
                          "(surfaces seen at grazing angles)"),
-    "--leftover-band": ("leftover_band", float, "BANDS",
+    "--leftover-band": ("leftover_band", 2.0, "BANDS",
                         "pieces too small to be objects join a plane within this many distance bands of it"),
 }
 
@@ -111,20 +113,14 @@ def add_parser(subparsers, verb: str) -> argparse.ArgumentParser:
     m.add_argument("--save-probabilities", action="store_true",
                    help="also write probabilities/<name>.npz (class probabilities and confidences, float16)")
     m.add_argument("--cache-dir", metavar="DIR", default=None, help="Hugging Face cache to look in")
-    # here, not at module level: keeps `import lift3d.cli.label` cheap; the defaults live with the labeller
-    # (which imports no torch, so `lift3d --help` stays cheap too)
-    from lift3d.label.geometric import GeometricSettings
-
-    defaults = GeometricSettings()
     g = p.add_argument_group("--geometric options (thresholds relative to the scene; docs/label.md)")
     g.add_argument("--depth-source", choices=("auto", "depth", "gt_depth"), default="auto",
                    help="depth_file_path (depth) or gt_depth_file_path (gt_depth, kept for evaluation); auto: "
                         "the input depth when frames have it, else gt_depth (default: auto)")
     g.add_argument("--up", type=_vector, default=None, metavar="X,Y,Z",
                    help="the world's up direction, when known (default: estimated from the capture)")
-    for flag, (name, kind, metavar, text) in GEOMETRIC_FLAGS.items():
-        g.add_argument(flag, type=kind, default=None, metavar=metavar,
-                       help=f"{text} (default: {getattr(defaults, name):g})")
+    for flag, (_, default, metavar, text) in GEOMETRIC_FLAGS.items():
+        g.add_argument(flag, type=float, default=None, metavar=metavar, help=f"{text} (default: {default:g})")
     p.set_defaults(func=run)
     return p
 
@@ -135,7 +131,8 @@ def run(args: argparse.Namespace) -> int:
     from lift3d.label import format_report, label_from_predictions, label_geometric, label_with_model
     from lift3d.label.geometric import GeometricSettings
 
-    given = {flag: getattr(args, spec[0]) for flag, spec in GEOMETRIC_FLAGS.items() if getattr(args, spec[0]) is not None}
+    given = {flag: getattr(args, name) for flag, (name, *_) in GEOMETRIC_FLAGS.items()
+             if getattr(args, name) is not None}
     if args.up is not None:
         given["--up"] = args.up
     if args.depth_source != "auto":

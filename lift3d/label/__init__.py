@@ -1,4 +1,4 @@
-"""``lift3d label``: 2D panoptic pseudo-labels for a scene folder from a real segmenter.
+"""``lift3d label``: 2D panoptic pseudo-labels for a scene folder from a real segmenter, or from depth.
 
 Three sources, one writer:
 
@@ -9,8 +9,8 @@ Three sources, one writer:
 * :func:`label_geometric` needs no segmenter: structure-only labels (wall, floor, ceiling, object) from
   the frames' depth maps (:mod:`lift3d.label.geometric`).
 
-The first two map the segmenter's classes onto the scene's vocabulary (:mod:`lift3d.label.classes`); all write, per
-frame, ``panoptic/<name>.png`` (COCO panoptic PNG) and optionally ``confidence/<name>.png`` (16-bit, [0, 1]),
+The first two map the segmenter's classes onto the scene's vocabulary (:mod:`lift3d.label.classes`); all
+write, per frame, ``panoptic/<name>.png`` (COCO panoptic PNG) and optionally ``confidence/<name>.png`` (16-bit, [0, 1]),
 then ``panoptic.json`` (with per-segment ``score``) and ``transforms.json`` (frames get
 ``panoptic_file_path``/``confidence_file_path``, the top level gets ``categories``; everything else is kept).
 
@@ -491,9 +491,9 @@ def _depth_paths(scene: LabelScene, depth_source: str) -> tuple[str, list[Path]]
     for frame, fr in zip(scene.frames, frames):
         rel = fr.get(key)
         if not isinstance(rel, str) or not rel:
-            other = [k for k in DEPTH_SOURCES.values() if k != key and k in fr]
-            has = f" (it has {other[0]}: pass --depth-source {'gt_depth' if key == 'depth_file_path' else 'depth'})" \
-                if other else " (nor any other depth map)"
+            other = [(name, k) for name, k in DEPTH_SOURCES.items() if k != key and k in fr]
+            has = f" (it has {other[0][1]}: pass --depth-source {other[0][0]})" if other else \
+                " (nor any other depth map)"
             raise InputError(scene.root / "transforms.json",
                              f"frames[{frame.index}] ({frame.name}): no {key}{has}; --geometric labels every frame "
                              "from its depth map")
@@ -517,9 +517,10 @@ def geometric_vocabulary(scene: LabelScene) -> tuple[list[Category], dict[str, i
         return list(GEOMETRIC_CATEGORIES), {c.name: c.id for c in GEOMETRIC_CATEGORIES}
     where = scene.root / "transforms.json"
     raw = scene.meta.get("categories")
-    if not raw:
-        gt_json = read_json(scene.root / "gt" / "panoptic.json")
-        raw, where = gt_json.get("categories") if isinstance(gt_json, dict) else None, scene.root / "gt" / "panoptic.json"
+    if not raw:  # the GT JSON's own list, as _gt_categories reads it
+        where = scene.root / "gt" / "panoptic.json"
+        gt_json = read_json(where)
+        raw = gt_json.get("categories") if isinstance(gt_json, dict) else None
     kept = {c.id: c for c in parse_categories(raw, where)} if raw else {}
     for cid, c in scene.gt_categories.items():
         kept.setdefault(cid, c)

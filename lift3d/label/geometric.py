@@ -128,7 +128,8 @@ class GeometricSettings:
         ranges = {
             "level_angle": (0.0, 45.0), "normal_angle": (0.0, 90.0), "plane_distance": (0.0, 1.0),
             "min_plane_share": (0.0, 1.0), "wall_max_behind": (0.0, 10.0), "depth_jump": (0.0, 10.0),
-            "min_object_share": (0.0, 1.0), "normal_window": (0.0, 1.0), "on_plane_share": (0.0, 1.0), "leftover_band": (0.0, 100.0),
+            "min_object_share": (0.0, 1.0), "normal_window": (0.0, 1.0), "on_plane_share": (0.0, 1.0),
+            "leftover_band": (0.0, 100.0),
         }
         for name, (lo, hi) in ranges.items():
             value = getattr(self, name)
@@ -268,8 +269,8 @@ def frame_geometry(cameras: Cameras, i: int, depth: np.ndarray, settings: Geomet
     c2w = cameras.c2w_opencv[i]
     # Cameras.unproject's arithmetic, written out per axis: a matmul with an inner size of 3 over a whole
     # image takes several times longer.
-    points = c2w[:3, 3] + (x.reshape(h, w) * z)[..., None] * c2w[:3, 0] + (y.reshape(h, w) * z)[..., None] * c2w[:3, 1] \
-        + z[..., None] * c2w[:3, 2]
+    x, y = x.reshape(h, w) * z, y.reshape(h, w) * z
+    points = c2w[:3, 3] + x[..., None] * c2w[:3, 0] + y[..., None] * c2w[:3, 1] + z[..., None] * c2w[:3, 2]
     # Discontinuities are judged between neighbours `stride` pixels apart: allow proportionally more.
     linked_right = _linked(z, valid, settings.depth_jump * stride)
     linked_down = _linked(z.T, valid.T, settings.depth_jump * stride).T
@@ -519,7 +520,8 @@ def _find_walls(points: np.ndarray, normals: np.ndarray, tol: np.ndarray, up: np
         centre = pts[sub].mean(0)
         hn32, hd32 = hn.astype(np.float32), (hd - hn @ centre).astype(np.float32)
         dist = np.abs((pts[sub] - centre).astype(np.float32) @ hn32.T - hd32)
-        votes = ((dist < band[sub, None].astype(np.float32)) & (nrm[sub].astype(np.float32) @ hn32.T > cos_normal)).sum(0)
+        agree = nrm[sub].astype(np.float32) @ hn32.T > cos_normal
+        votes = ((dist < band[sub, None].astype(np.float32)) & agree).sum(0)
         n, d = hn[np.argmax(votes)], float(hd[np.argmax(votes)])
         inliers = np.zeros(len(remaining), bool)
         for _ in range(3):
