@@ -547,6 +547,67 @@ def read_transforms(root: str | Path) -> tuple[Path, dict]:
     return tpath, meta
 
 
+def cameras_from_transforms(meta: dict, where: Path) -> Cameras:
+    """The cameras of a ``transforms.json`` (as read by :func:`read_transforms`), checked.
+
+    :func:`load_scene` reads its cameras with this; it is public for readers that need the poses and
+    intrinsics of a folder that has no pseudo-labels yet (``lift3d label --geometric``).
+
+    Parameters
+    ----------
+    meta : dict
+        The content of ``transforms.json``.
+    where : Path
+        The file, named in errors.
+
+    Returns
+    -------
+    Cameras
+        One camera per frame, in the order of ``frames``.
+
+    Raises
+    ------
+    InputError
+        Unknown camera model, a frame that is not an object, a pose that is not a finite rigid 4x4 (or 3x4)
+        matrix, missing or invalid intrinsics.
+    """
+    frames_raw = meta["frames"]
+    if "distortion_params" in meta or any(isinstance(f, dict) and "distortion_params" in f for f in frames_raw):
+        # nerfstudio's unnamed list (k1 k2 k3 k4 p1 p2, or 12 values for FISHEYE624): refused, not dropped.
+        raise InputError(where, "distortion_params: not read; give the coefficients by name (k1 k2 k3 k4 p1 p2), "
+                                "or convert the file with `lift3d convert --from nerfstudio`")
+    c2ws, intr, coefficients = [], [], []
+    for k, fr in enumerate(frames_raw):
+        if not isinstance(fr, dict):
+            raise InputError(where, f"frames[{k}]: must be an object")
+        try:
+            c2w = np.asarray(fr.get("transform_matrix"), dtype=np.float64)
+        except (TypeError, ValueError):
+            raise InputError(where, f"frames[{k}].transform_matrix: not a 4x4 matrix of numbers") from None
+        if c2w.shape == (3, 4):
+            c2w = np.vstack([c2w, [0, 0, 0, 1]])
+        if c2w.shape != (4, 4):
+            raise InputError(where, f"frames[{k}].transform_matrix: must be 4x4 (got shape {c2w.shape})")
+        if not np.all(np.isfinite(c2w)):
+            raise InputError(where, f"frames[{k}].transform_matrix: not finite")
+        if not is_rigid(c2w, atol=1e-3):
+            raise InputError(where, f"frames[{k}].transform_matrix: not a rigid transform (rotation must be orthonormal with det +1)")
+        c2ws.append(c2w)
+        intr.append(_intrinsics(meta, fr, where, k))
+        coefficients.append(_distortion(meta, fr, where, k))
+    camera_model = _camera_model(meta, coefficients, where)
+    # Cameras keeps OpenCV's order: k1 k2 p1 p2 k3 (OPENCV) or k1 k2 k3 k4 (OPENCV_FISHEYE), zeros after.
+    distortion = np.zeros((len(frames_raw), 5))
+    for k, coeffs in enumerate(coefficients):
+        for j, key in enumerate(CAMERA_MODELS[camera_model]):
+            distortion[k, j] = coeffs.get(key, (0.0, ""))[0]
+    intr_a = np.asarray(intr)
+    return Cameras(
+        c2w=np.stack(c2ws), fx=intr_a[:, 0], fy=intr_a[:, 1], cx=intr_a[:, 2], cy=intr_a[:, 3],
+        width=intr_a[:, 4], height=intr_a[:, 5], camera_model=camera_model, distortion=distortion,
+    )
+
+
 def load_scene(root: str | Path) -> Scene:
     """Read and check a scene folder.
 
@@ -575,10 +636,7 @@ def load_scene(root: str | Path) -> Scene:
     tpath, meta = read_transforms(root)
     frames_raw = meta["frames"]
 
-    if "distortion_params" in meta or any(isinstance(f, dict) and "distortion_params" in f for f in frames_raw):
-        # nerfstudio's unnamed list (k1 k2 k3 k4 p1 p2, or 12 values for FISHEYE624): refused, not dropped.
-        raise InputError(tpath, "distortion_params: not read; give the coefficients by name (k1 k2 k3 k4 p1 p2), "
-                                "or convert the file with `lift3d convert --from nerfstudio`")
+    cameras = cameras_from_transforms(meta, tpath)
 
     # Categories: transforms.json first, else the COCO panoptic JSON's own list. A scene without any labels
     # yet (written to be labelled afterwards) may have none, or an empty list.
@@ -601,31 +659,13 @@ def load_scene(root: str | Path) -> Scene:
     )
 
     frames: list[Frame] = []
-    c2ws, intr, coefficients = [], [], []
     seen_paths: dict[str, int] = {}
     for k, fr in enumerate(frames_raw):
-        if not isinstance(fr, dict):
-            raise InputError(tpath, f"frames[{k}]: must be an object")
         fp = fr.get("file_path")
         img_path = _resolve(root, fp, tpath, f"frames[{k}].file_path")
         if fp in seen_paths:
             raise InputError(tpath, f"frames[{k}].file_path: duplicate frame {fp!r} (also frames[{seen_paths[fp]}])")
         seen_paths[fp] = k
-        try:
-            c2w = np.asarray(fr.get("transform_matrix"), dtype=np.float64)
-        except (TypeError, ValueError):
-            raise InputError(tpath, f"frames[{k}].transform_matrix: not a 4x4 matrix of numbers") from None
-        if c2w.shape == (3, 4):
-            c2w = np.vstack([c2w, [0, 0, 0, 1]])
-        if c2w.shape != (4, 4):
-            raise InputError(tpath, f"frames[{k}].transform_matrix: must be 4x4 (got shape {c2w.shape})")
-        if not np.all(np.isfinite(c2w)):
-            raise InputError(tpath, f"frames[{k}].transform_matrix: not finite")
-        if not is_rigid(c2w, atol=1e-3):
-            raise InputError(tpath, f"frames[{k}].transform_matrix: not a rigid transform (rotation must be orthonormal with det +1)")
-        c2ws.append(c2w)
-        intr.append(_intrinsics(meta, fr, tpath, k))
-        coefficients.append(_distortion(meta, fr, tpath, k))
         name = Path(fp).stem
         frame = Frame(name=name, file_path=fp, image_path=img_path)
 
@@ -680,17 +720,6 @@ def load_scene(root: str | Path) -> Scene:
     if len({f.name for f in frames}) != len(frames):
         raise InputError(tpath, "frames: two frames share a file name stem (outputs are named by stem)")
 
-    camera_model = _camera_model(meta, coefficients, tpath)
-    # Cameras keeps OpenCV's order: k1 k2 p1 p2 k3 (OPENCV) or k1 k2 k3 k4 (OPENCV_FISHEYE), zeros after.
-    distortion = np.zeros((len(frames), 5))
-    for k, coeffs in enumerate(coefficients):
-        for j, key in enumerate(CAMERA_MODELS[camera_model]):
-            distortion[k, j] = coeffs.get(key, (0.0, ""))[0]
-    intr_a = np.asarray(intr)
-    cameras = Cameras(
-        c2w=np.stack(c2ws), fx=intr_a[:, 0], fy=intr_a[:, 1], cx=intr_a[:, 2], cy=intr_a[:, 3],
-        width=intr_a[:, 4], height=intr_a[:, 5], camera_model=camera_model, distortion=distortion,
-    )
     splits = _splits(meta, frames, tpath)
 
     scene_box = None

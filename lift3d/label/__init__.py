@@ -1,14 +1,16 @@
-"""``lift3d label``: 2D panoptic pseudo-labels for a scene folder from a real segmenter.
+"""``lift3d label``: 2D panoptic pseudo-labels for a scene folder from a real segmenter, or from depth.
 
-Two sources, one writer:
+Three sources, one writer:
 
 * :func:`label_with_model` runs a Mask2Former panoptic model through Hugging Face ``transformers``
   (:mod:`lift3d.label.mask2former`, optional test-time augmentation from :mod:`lift3d.label.tta`);
 * :func:`label_from_predictions` imports detectron2-style ``(panoptic_seg, segments_info)`` files made
-  elsewhere (:mod:`lift3d.label.predictions`).
+  elsewhere (:mod:`lift3d.label.predictions`);
+* :func:`label_geometric` needs no segmenter: structure-only labels (wall, floor, ceiling, object) from
+  the frames' depth maps (:mod:`lift3d.label.geometric`).
 
-Both map the segmenter's classes onto the scene's vocabulary (:mod:`lift3d.label.classes`) and write, per
-frame, ``panoptic/<name>.png`` (COCO panoptic PNG) and optionally ``confidence/<name>.png`` (16-bit, [0, 1]),
+The first two map the segmenter's classes onto the scene's vocabulary (:mod:`lift3d.label.classes`); all
+write, per frame, ``panoptic/<name>.png`` (COCO panoptic PNG) and optionally ``confidence/<name>.png`` (16-bit, [0, 1]),
 then ``panoptic.json`` (with per-segment ``score``) and ``transforms.json`` (frames get
 ``panoptic_file_path``/``confidence_file_path``, the top level gets ``categories``; everything else is kept).
 
@@ -33,19 +35,19 @@ import numpy as np
 
 from lift3d.convert.predictions import load_categories, parse_categories
 from lift3d.data.categories import Category
-from lift3d.data.images import read_rgb, write_label_map, write_panoptic_png
-from lift3d.data.scene import Segment, load_scene, read_transforms
+from lift3d.data.images import read_depth, read_rgb, write_label_map, write_panoptic_png
+from lift3d.data.scene import Segment, cameras_from_transforms, load_scene, read_transforms
 from lift3d.errors import InputError
 from lift3d.label.classes import coco_sources, load_class_mapping, sources_from_categories, sources_from_labels
-from lift3d.label.mask2former import Mask2FormerLabeler, load_mask2former, load_mask2former_config
+from lift3d.label.geometric import (GEOMETRIC_CATEGORIES, CAPTURE_POINTS, CAPTURE_SIDE, GeometricSettings,
+                                    fit_structure, frame_geometry, label_frame)
 from lift3d.label.predictions import convert_prediction, find_prediction, read_prediction
-from lift3d.label.tta import augmentations
 from lift3d.utils.atomic import write_bytes_atomic, write_json_atomic
-from lift3d.utils.device import resolve_device, set_threads
 from lift3d.utils.files import read_json
 from lift3d.utils.progress import progress_bar
 
-__all__ = ["label_with_model", "label_from_predictions", "LabelScene", "read_label_scene", "FrameLabels"]
+__all__ = ["label_with_model", "label_from_predictions", "label_geometric", "LabelScene", "read_label_scene",
+           "FrameLabels"]
 
 #: Staging folder inside the scene (removed at the end, or at the start of the next run after a crash).
 STAGING_DIR = ".lift3d-label-staging"
@@ -224,7 +226,8 @@ class _Staging:
 
 
 def write_labels(scene: LabelScene, categories: Sequence[Category],
-                 labelled: Iterator[tuple[LabelFrame, np.ndarray, FrameLabels]], *, progress: bool = True) -> dict:
+                 labelled: Iterator[tuple[LabelFrame, np.ndarray, FrameLabels]], *, progress: bool = True,
+                 labeller: dict | None = None) -> dict:
     """Write every frame's labels, then the JSON files; the scene is untouched unless all succeed.
 
     Parameters
@@ -235,6 +238,9 @@ def write_labels(scene: LabelScene, categories: Sequence[Category],
     labelled : iterator
         ``(frame, image, labels)`` for every frame of ``scene``, in order.
     progress : bool
+    labeller : dict, optional
+        How the labels were made, written as ``transforms.json`` ``labeller``; without it an older
+        ``labeller`` entry is removed (it described the labels being replaced).
 
     Returns
     -------
@@ -293,6 +299,10 @@ def write_labels(scene: LabelScene, categories: Sequence[Category],
     meta = dict(scene.meta)
     meta["categories"] = cats_json
     meta["frames"] = frames_meta
+    if labeller is not None:
+        meta["labeller"] = labeller
+    else:
+        meta.pop("labeller", None)
     coco = {"images": images_json, "annotations": annotations, "categories": cats_json}
     staging.commit()
     write_json_atomic(scene.panoptic_json, coco)
@@ -351,7 +361,7 @@ def label_with_model(scene_dir: str | Path, model: str | Path, *, classes: str |
     cache_dir : str or Path, optional
         Hugging Face cache to look in.
     progress : bool
-    labeler : Mask2FormerLabeler, optional
+    labeler : lift3d.label.mask2former.Mask2FormerLabeler, optional
         A ready labeler (then ``model``, ``classes``, ``device``, thresholds and ``shortest_edge`` are unused).
 
     Returns
@@ -359,6 +369,12 @@ def label_with_model(scene_dir: str | Path, model: str | Path, *, classes: str |
     dict
         Statistics of what was written (see :func:`write_labels`) plus ``seconds``, ``classes``, ``passes``.
     """
+    # here, not at module level: only the model needs torch; this keeps `lift3d label --help` and --geometric
+    # cheap (no torch import)
+    from lift3d.label.mask2former import Mask2FormerLabeler, load_mask2former, load_mask2former_config
+    from lift3d.label.tta import augmentations
+    from lift3d.utils.device import resolve_device, set_threads
+
     t0 = time.perf_counter()
     if batch_size < 1:
         raise InputError("--batch-size", f"must be at least 1 (got {batch_size})")
@@ -455,6 +471,169 @@ def label_from_predictions(scene_dir: str | Path, predictions_dir: str | Path, *
     return report
 
 
+#: ``depth_source`` choices of :func:`label_geometric` and the frame key each one reads.
+DEPTH_SOURCES = {"depth": "depth_file_path", "gt_depth": "gt_depth_file_path"}
+
+
+def _depth_paths(scene: LabelScene, depth_source: str) -> tuple[str, list[Path]]:
+    """The frame key to read depth from and every frame's depth file; one-line errors when one is missing.
+
+    ``auto`` takes the input depth (``depth_file_path``) when any frame has it, else the depth kept for
+    evaluation (``gt_depth_file_path``); either way every frame must have it (the capture pass needs all
+    of them to agree on the planes, and a frame cannot be labelled without depth)."""
+    if depth_source not in ("auto", *DEPTH_SOURCES):
+        raise InputError("--depth-source", f"{depth_source!r} is not one of auto, {', '.join(DEPTH_SOURCES)}")
+    frames = scene.meta["frames"]
+    if depth_source == "auto":
+        depth_source = "depth" if any(DEPTH_SOURCES["depth"] in f for f in frames) else "gt_depth"
+    key = DEPTH_SOURCES[depth_source]
+    paths = []
+    for frame, fr in zip(scene.frames, frames):
+        rel = fr.get(key)
+        if not isinstance(rel, str) or not rel:
+            other = [(name, k) for name, k in DEPTH_SOURCES.items() if k != key and k in fr]
+            has = f" (it has {other[0][1]}: pass --depth-source {other[0][0]})" if other else \
+                " (nor any other depth map)"
+            raise InputError(scene.root / "transforms.json",
+                             f"frames[{frame.index}] ({frame.name}): no {key}{has}; --geometric labels every frame "
+                             "from its depth map")
+        path = Path(rel) if os.path.isabs(rel) else scene.root / rel
+        if not path.is_file():
+            raise InputError(path, f"file not found (from frames[{frame.index}].{key} in transforms.json)")
+        paths.append(path)
+    return key, paths
+
+
+def geometric_vocabulary(scene: LabelScene) -> tuple[list[Category], dict[str, int]]:
+    """The categories structure-only labels are written with, and the id of each of their classes.
+
+    Without ground truth: :data:`~lift3d.label.geometric.GEOMETRIC_CATEGORIES` (wall 1, floor 2, ceiling 3,
+    object 4). With ground truth, its ids must keep their meaning, so the scene's categories are kept and
+    ``wall``, ``floor``, ``ceiling`` and ``object`` are matched to them by name (case-insensitive); a class
+    the scene lacks is added with the next free id. A scene category of one of these names with the other
+    thing/stuff flag is an error.
+    """
+    if not scene.gt_categories:
+        return list(GEOMETRIC_CATEGORIES), {c.name: c.id for c in GEOMETRIC_CATEGORIES}
+    where = scene.root / "transforms.json"
+    raw = scene.meta.get("categories")
+    if not raw:  # the GT JSON's own list, as _gt_categories reads it
+        where = scene.root / "gt" / "panoptic.json"
+        gt_json = read_json(where)
+        raw = gt_json.get("categories") if isinstance(gt_json, dict) else None
+    kept = {c.id: c for c in parse_categories(raw, where)} if raw else {}
+    for cid, c in scene.gt_categories.items():
+        kept.setdefault(cid, c)
+    by_name = {c.name.casefold(): c for c in kept.values()}
+    ids = {}
+    for new in GEOMETRIC_CATEGORIES:
+        old = by_name.get(new.name)
+        if old is None:
+            old = Category(max(kept, default=0) + 1, new.name, new.isthing, new.color)
+            kept[old.id] = old
+        elif old.isthing != new.isthing:
+            kinds = ("stuff", "thing")
+            raise InputError(where, f"category {old.id} {old.name!r} is {kinds[old.isthing]} in the scene, but "
+                                    f"--geometric labels make {new.name} {kinds[new.isthing]}; the ground truth "
+                                    "uses the scene's categories, so rename that category or label another way")
+        ids[new.name] = old.id
+    return sorted(kept.values(), key=lambda c: c.id), ids
+
+
+def label_geometric(scene_dir: str | Path, settings: GeometricSettings | None = None, *, depth_source: str = "auto",
+                    progress: bool = True) -> dict:
+    """Structure-only labels from the frames' depth maps: wall, floor, ceiling and one ``object`` per
+    depth-connected component (:mod:`lift3d.label.geometric`), no 2D segmenter.
+
+    Parameters
+    ----------
+    scene_dir : str or Path
+        The scene folder (``transforms.json``, images and a depth map for every frame; existing labels are
+        replaced, and none are needed).
+    settings : GeometricSettings, optional
+        The thresholds (defaults: :class:`~lift3d.label.geometric.GeometricSettings`).
+    depth_source : {"auto", "depth", "gt_depth"}
+        Read ``depth_file_path`` or ``gt_depth_file_path``; ``auto`` prefers the input depth and falls back to
+        the evaluation depth only when no frame has input depth.
+    progress : bool
+
+    Returns
+    -------
+    dict
+        As :func:`write_labels`, plus ``seconds``, ``classes``, ``source``, ``labeller`` (what was recorded in
+        ``transforms.json``) and ``class_shares`` (the share of all pixels each class got, void included).
+
+    Examples
+    --------
+    >>> from lift3d.synth import make_scene                                  # doctest: +SKIP
+    >>> make_scene("room", n_views=8, progress=False)                        # doctest: +SKIP
+    >>> label_geometric("room", progress=False)["labeller"]["up"]            # doctest: +SKIP
+    [0.0, 0.0, 1.0]
+    """
+    t0 = time.perf_counter()
+    settings = settings or GeometricSettings()
+    settings.check()
+    scene = read_label_scene(scene_dir)
+    tpath = scene.root / "transforms.json"
+    cameras = cameras_from_transforms(scene.meta, tpath)
+    unit = scene.meta.get("depth_unit_scale_factor", 1e-3)
+    if not isinstance(unit, (int, float)) or not np.isfinite(unit) or unit <= 0:
+        raise InputError(tpath, f"depth_unit_scale_factor: must be a positive number (got {unit!r})")
+    key, depth_paths = _depth_paths(scene, depth_source)
+    categories, ids = geometric_vocabulary(scene)
+    check_gt_compatible(scene, categories)
+
+    def depth_of(frame: LabelFrame) -> np.ndarray:
+        path = depth_paths[frame.index]
+        depth = read_depth(path, float(unit))
+        w, h = int(cameras.width[frame.index]), int(cameras.height[frame.index])
+        if depth.shape != (h, w):
+            raise InputError(path, f"depth map is {depth.shape[1]}x{depth.shape[0]} but the image is {w}x{h}")
+        return depth
+
+    # Capture pass: a sample of every frame (the larger side read at about CAPTURE_SIDE pixels) for the up
+    # direction and the planes.
+    per_frame = max(2000, CAPTURE_POINTS // len(scene.frames))
+    rng = np.random.default_rng(0)
+    samples: list[tuple[np.ndarray, ...]] = []
+    for frame in progress_bar(scene.frames, desc="fit planes", unit="frame", disable=not progress):
+        depth = depth_of(frame)
+        geom = frame_geometry(cameras, frame.index, depth, settings,
+                              stride=max(1, int(np.ceil(max(depth.shape) / CAPTURE_SIDE))))
+        idx = np.flatnonzero(geom.has_normal.ravel())
+        if len(idx) > per_frame:
+            idx = rng.choice(idx, per_frame, replace=False)
+        samples.append((geom.points.reshape(-1, 3)[idx], geom.normals.reshape(-1, 3)[idx], geom.depth.ravel()[idx]))
+    points, normals, depths = (np.concatenate(a) for a in zip(*samples))
+    if len(points) == 0:
+        raise InputError(scene.root, f"no frame has usable depth in its {key} maps (all zero?)")
+    structure = fit_structure(points, normals, depths, cameras.c2w, settings)
+
+    shares = np.zeros(len(GEOMETRIC_CATEGORIES) + 1)  # void, then GEOMETRIC_CATEGORIES' order
+
+    def labelled() -> Iterator[tuple[LabelFrame, np.ndarray, FrameLabels]]:
+        order = [0] + [ids[c.name] for c in GEOMETRIC_CATEGORIES]
+        for frame, image in _frames_with_images(scene):
+            geom = frame_geometry(cameras, frame.index, depth_of(frame), settings)
+            panoptic, segments = label_frame(geom, structure, settings, ids)
+            area = np.bincount(panoptic.ravel())
+            for seg in segments:
+                shares[order.index(seg.category_id)] += area[seg.id]
+            shares[0] += area[0]
+            yield frame, image, FrameLabels(panoptic, segments)
+
+    labeller = {
+        "method": "geometric", "structure_only": True, "depth": key, "categories": ids,
+        "settings": settings.to_json(), **structure.to_json(),
+    }
+    report = write_labels(scene, categories, labelled(), progress=progress, labeller=labeller)
+    names = ["void"] + [c.name for c in GEOMETRIC_CATEGORIES]
+    report.update(seconds=time.perf_counter() - t0, source=f"depth maps ({key})", passes=[], labeller=labeller,
+                  classes="structure-only: " + ", ".join(f"{n} {ids[n]}" for n in ids),
+                  class_shares={n: float(v / max(shares.sum(), 1)) for n, v in zip(names, shares)})
+    return report
+
+
 def format_report(report: dict, scene_dir: str | Path) -> str:
     """A few summary lines for the CLI."""
     score = "n/a" if report["mean_score"] is None else f"{report['mean_score']:.3f}"
@@ -465,11 +644,20 @@ def format_report(report: dict, scene_dir: str | Path) -> str:
         written.insert(1, "probabilities/")
     n_passes = len(report["passes"])
     passes = f", TTA {n_passes} passes ({', '.join(report['passes'])})" if n_passes > 1 else ""
+    lines = []
+    if "labeller" in report:
+        lab = report["labeller"]
+        kinds = [p["kind"] for p in lab["planes"]]
+        shares = ", ".join(f"{k} {100 * v:.1f}%" for k, v in report["class_shares"].items())
+        lines = [f"  up {(np.round(lab['up'], 3) + 0.0).tolist()} (from {lab['up_source']}); planes: "
+                 f"{kinds.count('floor')} floor, {kinds.count('ceiling')} ceiling, {kinds.count('wall')} walls",
+                 f"  pixels: {shares}"]
     return "\n".join([
         f"labelled {report['frames']} frames of {scene_dir} from {report['source']} "
         f"in {report['seconds']:.1f} s{passes}",
         f"  classes: {report['classes']}",
         f"  {report['segments_per_frame']:.1f} segments per frame, void {100 * report['void_fraction']:.1f}% "
         f"of pixels, mean segment score {score}",
+        *lines,
         f"  wrote {', '.join(written)}",
     ])
