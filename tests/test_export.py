@@ -26,7 +26,8 @@ from lift3d.data.scene import Category, SceneWriter, Segment, load_scene
 from lift3d.errors import InputError
 from lift3d.export import export_run
 from lift3d.export.instances import assign_instances, voxel_downsample_majority
-from lift3d.export.mesh import choose_density_threshold, extract_labelled_mesh
+from lift3d.export.isosurface import choose_density_threshold
+from lift3d.export.mesh import extract_labelled_mesh
 from lift3d.export.pointcloud import OrientedBox, extract_labelled_points
 from lift3d.export.writers.pcd import read_pcd, write_pcd
 from lift3d.export.writers.semantickitti import read_semantickitti_label
@@ -171,7 +172,7 @@ def test_surface_points_lie_on_the_visible_surfaces(surface_points):
 def test_a_sheet_thinner_than_the_coarse_lattice_is_still_contoured(monkeypatch):
     """A wall one fine cell thick, lying between two coarse-lattice nodes (what depth supervision makes of
     a wall): the coarse pass sees zero on both sides and, at 64³, would skip it."""
-    from lift3d.export.mesh import DEFAULT_LATTICE, field_isosurface, lattice_resolution
+    from lift3d.export.isosurface import DEFAULT_LATTICE, field_isosurface, lattice_resolution
 
     model = _tiny_model()
     monkeypatch.setattr(type(model.field), "finest_resolution", property(lambda f: 128))  # claims 128³ detail
@@ -199,7 +200,7 @@ def test_isosurface_equals_contouring_every_lattice_node(resolution):
     are decoded (density 0 elsewhere by the Field contract)."""
     import pyvista as pv
 
-    from lift3d.export.mesh import field_density, field_isosurface
+    from lift3d.export.isosurface import field_density, field_isosurface
 
     model = _tiny_model()
     decoded = []
@@ -239,7 +240,7 @@ def test_automatic_threshold_matches_the_rendered_surface(analytic):
 def test_refinement_moves_vertices_onto_the_rendered_surface():
     """A ball whose density ramps linearly from 0 at radius R0 to P at R0 - W: a ray going inwards along
     the normal reaches opacity 0.5 where P s² / (2 W) = ln 2, deeper than a low isosurface."""
-    from lift3d.export.mesh import field_isosurface, refine_to_rendered_surface
+    from lift3d.export.isosurface import field_isosurface, refine_to_rendered_surface
 
     r0, width, peak, tau = 0.5, 0.05, 100.0, 10.0
     model = _tiny_model()
@@ -269,7 +270,7 @@ def test_refinement_moves_vertices_onto_the_rendered_surface():
 def test_refinement_leaves_crevice_vertices_alone():
     """Two parallel slabs one voxel apart: the short ray of a vertex facing the gap starts inside the other
     slab (σ ≥ τ at its first sample), so that vertex must not jump onto the neighbour."""
-    from lift3d.export.mesh import field_isosurface, refine_to_rendered_surface
+    from lift3d.export.isosurface import field_isosurface, refine_to_rendered_surface
 
     model = _tiny_model()
     voxel = 2.0 / 64

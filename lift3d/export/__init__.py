@@ -2,9 +2,13 @@
 
 Modules:
 
-- :mod:`lift3d.export.pointcloud` — :func:`extract_labelled_points` (surface or rays source, filters);
-- :mod:`lift3d.export.mesh` — density threshold, chunked density grid, isosurface, camera visibility,
-  :func:`~lift3d.export.mesh.extract_labelled_mesh`;
+- :mod:`lift3d.export.pointcloud` — :func:`extract_labelled_points` (surface, tsdf or rays source, then the steps);
+- :mod:`lift3d.export.points` — :class:`LabelledPoints` (the points the steps pass on), the crop box;
+- :mod:`lift3d.export.isosurface` — density threshold, chunked density grid, isosurface and its refinement;
+- :mod:`lift3d.export.visibility` — training frames and cameras, which camera sees a surface point;
+- :mod:`lift3d.export.fills` — the rendered surface where the isosurface has a hole (box faces, things);
+- :mod:`lift3d.export.frames` — world or normalised output coordinates;
+- :mod:`lift3d.export.mesh` — :func:`~lift3d.export.mesh.extract_labelled_mesh`, the labelled isosurface;
 - :mod:`lift3d.export.instances` — label heads at points, stable instance ids, per-instance records;
 - :mod:`lift3d.export.writers` — the ``--format`` registry: one writer class per file format (PLY and its
   CloudCompare flavour, PCD, SemanticKITTI, ROS 2 bag, OctoMap, Nav2 map);

@@ -11,7 +11,7 @@ Three sources of 3D points, all labelled by running the field's semantic and ins
     finest grid (at least 128, at most 256 cells per axis): the density cannot change faster than that.
     Unbounded scenes are sampled in contracted space (so the foreground is dense and the background
     sparse, as pixels see it) and written in world coordinates; far background beyond
-    :data:`~lift3d.export.mesh.UNBOUNDED_MAX_RADIUS` is skipped.
+    :data:`~lift3d.export.isosurface.UNBOUNDED_MAX_RADIUS` is skipped.
     In a bounded scene, where the isosurface has a hole next to the scene box (a wall or ceiling the box
     hugs: rays end at the box whatever the density), the training views' rendered surface fills it
     (:func:`box_face_fill`).
@@ -45,7 +45,6 @@ from __future__ import annotations
 import math
 import tempfile
 import time
-from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -56,23 +55,20 @@ from lift3d.data.ply import write_labelled_ply
 from lift3d.data.scene import Scene
 from lift3d.errors import InputError
 from lift3d.export.cleanup import clean_instances
+from lift3d.export.fills import box_face_fill, thing_surface_fill
+from lift3d.export.frames import check_frame, to_frame, world_from_normalized
 from lift3d.export.instances import assign_instances, join_filled_instances, voxel_downsample_majority
-from lift3d.export.stuff import complete_stuff_corners, orient_stuff_labels
-from lift3d.export.views import rendered_depth, view_depths, vote_stuff_labels
-from lift3d.export.mesh import (
-    CameraVisibility,
-    _check_frame,
+from lift3d.export.isosurface import (
     choose_density_threshold,
     field_isosurface,
     lattice_resolution,
-    normalized_cameras,
     point_surface_resolution,
     refine_to_rendered_surface,
-    to_frame,
-    train_frames,
-    view_directions,
-    world_from_normalized,
 )
+from lift3d.export.points import LabelledPoints, OrientedBox, default_crumb_points, typical_spacing
+from lift3d.export.stuff import complete_stuff_corners, orient_stuff_labels
+from lift3d.export.views import vote_stuff_labels
+from lift3d.export.visibility import CameraVisibility, normalized_cameras, train_frames, view_directions
 from lift3d.export.tsdf import fuse_rendered_depth, sample_surface
 from lift3d.field.encodings import uncontract
 from lift3d.model.run import LoadedRun, load_run
@@ -82,9 +78,6 @@ from lift3d.utils.memory import peak_rss_mb
 
 #: Rays source: keep rays whose accumulated opacity exceeds this (nerfstudio's rule).
 RAY_OPACITY_THRESHOLD = 0.5
-#: Surface source, bounded scenes: the rendered surface within this share of the box's diagonal of the box's
-#: faces fills in where the isosurface has nothing (see :func:`box_face_fill`).
-BOX_FILL_MARGIN = 0.01
 #: Point sources of :func:`extract_labelled_points`, the default first.
 SOURCES = ("auto", "surface", "tsdf", "rays")
 #: Statistical outlier removal: neighbours per point (nerfstudio and Open3D's tutorial use 20).
@@ -98,89 +91,6 @@ MIN_INSTANCE_CONFIDENCE = 0.7
 #: voting views (:func:`lift3d.export.cleanup.clean_instances`). One: on tuning scene 5, asking for two or three
 #: folded real objects that few views see (a toy plane on the floor in 1 of 1 voting view, a ball in 2 of 5).
 MIN_SUPPORT_VIEWS = 1
-
-
-# ------------------------------------------------------------------------------------------ results
-@dataclass
-class LabelledPoints:
-    """A labelled point cloud in the export frame.
-
-    Attributes
-    ----------
-    xyz : np.ndarray
-        ``[N, 3]`` float32 positions (world units unless ``frame == "normalized"``).
-    rgb : np.ndarray
-        ``[N, 3]`` uint8 colours.
-    semantic : np.ndarray
-        ``[N]`` int32 category ids (never 0 = void).
-    instance : np.ndarray
-        ``[N]`` int32 instance ids, contiguous ``1..K`` on thing classes, 0 on stuff.
-    confidence : np.ndarray
-        ``[N]`` float32 probability of the chosen class.
-    frame : str
-        ``world`` (the input poses' frame) or ``normalized`` (the field's coordinates).
-    transform : np.ndarray
-        ``4×4`` world ← normalised (``x_world = transform @ [x_normalized, 1]``).
-    thresholds : dict
-        Every threshold the export used (density, opacity, confidence, visibility tolerance, link radius...).
-    stats : dict
-        Counts and timings of each stage.
-    """
-
-    xyz: np.ndarray
-    rgb: np.ndarray
-    semantic: np.ndarray
-    instance: np.ndarray
-    confidence: np.ndarray
-    frame: str
-    transform: np.ndarray
-    thresholds: dict[str, Any]
-    stats: dict[str, Any] = field(default_factory=dict)
-
-    def __len__(self) -> int:
-        return len(self.xyz)
-
-
-@dataclass
-class OrientedBox:
-    """A crop box: ``center``, rotation matrix ``R`` (box axes as columns) and full side lengths ``scale``.
-
-    nerfstudio's ``--obb-center/--obb-rotation/--obb-scale`` convention: the rotation is given as roll,
-    pitch, yaw in radians about x, y, z, applied in that order (``R = Rz(yaw) Ry(pitch) Rx(roll)``).
-    """
-
-    center: np.ndarray
-    R: np.ndarray
-    scale: np.ndarray
-
-    @classmethod
-    def from_params(cls, center=(0.0, 0.0, 0.0), rotation=(0.0, 0.0, 0.0), scale=(2.0, 2.0, 2.0)) -> "OrientedBox":
-        from scipy.spatial.transform import Rotation
-
-        scale = np.asarray(scale, np.float64)
-        if scale.shape != (3,) or not np.all(scale > 0):
-            raise InputError("--obb-scale", f"needs three positive side lengths, got {np.asarray(scale).tolist()}")
-        rot = Rotation.from_euler("xyz", np.asarray(rotation, np.float64)).as_matrix()
-        return cls(np.asarray(center, np.float64), rot, scale)
-
-    @classmethod
-    def coerce(cls, obb) -> "OrientedBox":
-        """Accept an :class:`OrientedBox`, an Open3D ``OrientedBoundingBox``, or a dict with ``center``,
-        ``rotation`` (roll, pitch, yaw) and ``scale``."""
-        if isinstance(obb, cls):
-            return obb
-        if isinstance(obb, dict):
-            return cls.from_params(obb.get("center", (0, 0, 0)), obb.get("rotation", (0, 0, 0)),
-                                   obb.get("scale", (2, 2, 2)))
-        if hasattr(obb, "R") and hasattr(obb, "extent") and hasattr(obb, "center"):
-            return cls(np.asarray(obb.center, np.float64), np.asarray(obb.R, np.float64),
-                       np.asarray(obb.extent, np.float64))
-        raise TypeError(f"obb: expected OrientedBox, dict or open3d OrientedBoundingBox, got {type(obb).__name__}")
-
-    def contains(self, xyz: np.ndarray) -> np.ndarray:
-        """``[N]`` bool: points inside (or on) the box."""
-        local = (np.asarray(xyz, np.float64) - self.center) @ self.R
-        return np.all(np.abs(local) <= self.scale / 2.0 + 1e-12, axis=1)
 
 
 # ------------------------------------------------------------------------------------------ main entry
@@ -227,10 +137,10 @@ def extract_labelled_points(loaded: LoadedRun, scene: Scene, *, source: str = "a
         Output coordinates: the input poses' frame (default), or the field's normalised frame.
     density_threshold : float, optional
         Isosurface density (normalised units); default chosen from the field
-        (:func:`lift3d.export.mesh.choose_density_threshold`).
+        (:func:`lift3d.export.isosurface.choose_density_threshold`).
     refine_surface : bool
         ``surface`` source: move the isosurface onto the rendered surface before sampling
-        (:func:`lift3d.export.mesh.refine_to_rendered_surface`; default on). Off: points lie exactly on
+        (:func:`lift3d.export.isosurface.refine_to_rendered_surface`; default on). Off: points lie exactly on
         ``σ = τ``.
     min_confidence : float
         Drop points whose chosen class has a lower probability.
@@ -287,7 +197,7 @@ def extract_labelled_points(loaded: LoadedRun, scene: Scene, *, source: str = "a
     -------
     LabelledPoints
     """
-    _check_frame(frame)
+    check_frame(frame)
     requested = source
     source, source_rule = resolve_point_source(source, loaded, scene)
     if int(num_points) < 1:
@@ -452,44 +362,6 @@ def _complete_corners(loaded: LoadedRun, scene: Scene, frame: str, link: float, 
             np.r_[confidence[keep], confidence[source]], np.r_[filled[keep], filled[source]], info)
 
 
-def default_crumb_points(link_radius: float, spacing: float) -> int:
-    """Points on a patch ``link_radius`` on a side: uniform random points with median nearest-neighbour
-    distance ``spacing`` have density ``ln 2 / (π spacing²)`` per unit area.
-
-    Examples
-    --------
-    >>> default_crumb_points(0.1, 0.01)
-    22
-    """
-    if spacing <= 0:
-        return 0
-    return int(round(math.log(2) / math.pi * (link_radius / spacing) ** 2))
-
-
-def typical_spacing(xyz: np.ndarray, sample: int = 20000, seed: int = 0) -> float:
-    """Median nearest-neighbour distance of a point cloud, estimated from a random subset.
-
-    A random subset of ``n`` of ``N`` points sampled uniformly on a surface is ``√(N/n)`` times sparser, so
-    its spacing is scaled back (exact in expectation for such samples, which is what the surface source
-    draws).
-
-    Examples
-    --------
-    For 100 000 uniform points on a unit square the expected median is ``√(ln 2 / (π · 100 000))``:
-
-    >>> pts = np.c_[np.random.default_rng(0).random((100_000, 2)), np.zeros(100_000)]
-    >>> round(float(typical_spacing(pts) / np.sqrt(np.log(2) / (np.pi * 100_000))), 1)
-    1.0
-    """
-    from scipy.spatial import cKDTree
-
-    n = len(xyz)
-    if n < 2:
-        return 0.0
-    rng = np.random.default_rng(seed)
-    sub = xyz if n <= sample else xyz[rng.choice(n, sample, replace=False)]
-    d, _ = cKDTree(sub).query(sub, k=2, workers=-1)
-    return float(np.median(d[:, 1])) * math.sqrt(len(sub) / n)
 
 
 # ------------------------------------------------------------------------------------------ sources
@@ -572,120 +444,6 @@ def _surface_points(loaded: LoadedRun, scene: Scene, num_points: int, density_th
             "link_radius_normalized": link,
             "surface": {"faces": int(len(surface.faces)), "seen_faces": int(len(seen)), **surface.stats}}
 
-
-def box_face_fill(loaded: LoadedRun, scene: Scene, x_surface: np.ndarray, cams, *, cache: dict | None = None,
-                  margin: float = BOX_FILL_MARGIN, min_gap: float = 0.0) -> tuple[np.ndarray, np.ndarray, dict[str, Any]]:
-    """Points of the rendered surface next to a bounded scene's box where the isosurface has none.
-
-    Rays stop at the scene box. A room's box hugs its walls, floor and ceiling, so the field need not build a
-    surface there: the last centimetres before the box end the ray whatever the density. A wall or ceiling
-    met by few depth targets then stays a soft layer below the isosurface's threshold, and its pixels render
-    right while the isosurface has a hole (images-only tuning room 7: 0.74 of the ceiling's GT points within τ
-    of the export; a reported room, 0.41). The training views' rendered surface (:func:`_fill_holes`)
-    is kept where it lies within ``margin`` of the box's diagonal of a face of the box and more than three point
-    spacings (and ``min_gap``) from every isosurface point, thinned to one per point spacing. ``min_gap`` keeps a
-    dense export from covering again surface the isosurface has (the export passes two isosurface voxels, its
-    instance link radius: at a million points three spacings are 1.7 cm, and a reported room's export took a
-    quarter of its points from the fill, all but 0.5 % of them within two voxels of it).
-
-    Parameters
-    ----------
-    x_surface : np.ndarray
-        ``[N, 3]`` the isosurface points (normalised coordinates).
-    cams : Cameras
-        The training cameras in normalised coordinates (:func:`lift3d.export.mesh.normalized_cameras`).
-
-    Returns
-    -------
-    (np.ndarray, np.ndarray, dict)
-        ``[M, 3]`` points (normalised), ``[M, 3]`` the directions their views see them along, and the step's
-        record for ``metadata.json``.
-    """
-    info: dict[str, Any] = {"rule": "rendered surface within a margin of the box, where the isosurface has no point",
-                            "margin": float(margin)}
-    lo, hi = loaded.norm.to_normalized(loaded.norm.aabb_world)
-    near_face = margin * float(np.linalg.norm(hi - lo))
-
-    def near_box(p: np.ndarray, *_) -> np.ndarray:
-        return np.minimum(p - lo, hi - p).min(1) <= near_face
-
-    return _fill_holes(loaded, scene, x_surface, cams, near_box, info, cache=cache, min_gap=min_gap,
-                       smooth_slack=0.25 * near_face)
-
-
-def thing_surface_fill(loaded: LoadedRun, scene: Scene, x_surface: np.ndarray, cams, *,
-                       cache: dict | None = None, min_gap: float = 0.0) -> tuple[np.ndarray, np.ndarray, dict[str, Any]]:
-    """Points of the rendered surface of things where the isosurface has none.
-
-    Without depth maps an object's density often stays below the isosurface's threshold on the faces few depth
-    targets reach, while its pixels render it in place: on images-only tuning rooms 10 and 22, 0.88 and 0.84 of
-    the things' GT points lay within τ of the export (1.00 and 0.94 with this fill). A training view's rendered
-    surface point is kept where the field labels it a thing class and the view's own 2D label at that pixel is
-    the same class (without that, tuning room 22's precision fell 0.949 -> 0.914, with it 0.926, at the box fill's
-    gap), more than three point spacings (and ``min_gap``) from every isosurface point, one per point spacing (as
-    :func:`box_face_fill`). Stuff is not filled: the rendered surface of walls in an images-only field has layers
-    in front of them (all of it on tuning room 10: precision 0.957 -> 0.842).
-
-    Parameters and returns as :func:`box_face_fill`.
-    """
-    info: dict[str, Any] = {"rule": "rendered surface that the field and the view's 2D label both call one thing "
-                                    "class, where the isosurface has no point"}
-    things = np.asarray(sorted(scene.thing_ids), np.int64)
-
-    def is_thing(p: np.ndarray, i: int, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
-        if not len(things) or not len(p):
-            return np.zeros(len(p), bool)
-        semantic = loaded.model.query_labels(p.astype(np.float32)).semantic
-        return np.isin(semantic, things) & (scene.pseudo_labels(i).semantic[rows, cols] == semantic)
-
-    return _fill_holes(loaded, scene, x_surface, cams, is_thing, info, cache=cache, min_gap=min_gap)
-
-
-def _fill_holes(loaded: LoadedRun, scene: Scene, x_surface: np.ndarray, cams, where, info: dict[str, Any], *,
-                cache: dict | None, min_gap: float, smooth_slack: float = 0.0
-                ) -> tuple[np.ndarray, np.ndarray, dict[str, Any]]:
-    """The training views' rendered surface (views without a depth map) where ``where(points, view, rows, cols)``
-    (``[K, 3]`` normalised points, the view's index and their ``[K]`` pixel rows and columns at full resolution →
-    ``[K] bool``) and more than three point spacings (and ``min_gap``) from every point of ``x_surface``, thinned
-    to one per point spacing: ``(points, view directions, info)``.
-
-    Each view is rendered (:func:`lift3d.export.views.rendered_depth`, shared with the label vote) and its depths
-    back-projected where the opacity reaches one half and the depth agrees with its 3 × 3 median to within 2 %
-    (+ ``smooth_slack`` in normalised units): not an edge between two surfaces."""
-    from scipy.ndimage import median_filter
-    from scipy.spatial import cKDTree
-
-    frames = [int(i) for i in train_frames(scene) if scene.frames[int(i)].depth_path is None]
-    empty = np.zeros((0, 3))
-    info = dict(info, views=len(frames), points=0)
-    if not frames or len(x_surface) < 2:
-        return empty, empty, info
-    spacing = typical_spacing(x_surface)
-    if spacing <= 0:
-        return empty, empty, info
-    gap = max(3.0 * spacing, float(min_gap))
-    # these views without a depth map, at the downscale the label vote renders them at: one render each
-    depths = view_depths(scene, frames, rendered_depth(loaded, scene, cache))
-    scale = float(loaded.norm.scale)
-    tree = cKDTree(x_surface)
-    pts, dirs = [], []
-    for i, (depth, ds) in depths.items():
-        smooth = np.abs(depth - median_filter(depth, size=3)) <= 0.02 * depth + smooth_slack / scale
-        r, c = np.nonzero((depth > 0) & smooth)
-        if not len(r):
-            continue
-        off = (ds - 1) / 2.0  # the centre of a ds x ds block, as a pixel index
-        p = cams.unproject(i, c * ds + off, r * ds + off, depth[r, c] * scale)
-        keep = tree.query(p, distance_upper_bound=gap)[0] > gap
-        keep[keep] = where(p[keep], i, (r * ds + ds // 2)[keep], (c * ds + ds // 2)[keep])
-        pts.append(p[keep]), dirs.append(view_directions(p[keep], cams.centers[i]))
-    if not pts or not sum(len(p) for p in pts):
-        return empty, empty, info
-    pts, dirs = np.concatenate(pts), np.concatenate(dirs)
-    first = np.unique(np.floor(pts / spacing).astype(np.int64), axis=0, return_index=True)[1]
-    info.update(points=int(len(first)), spacing=float(spacing), gap=float(gap),
-                downscale=next(iter(depths.values()))[1])
-    return pts[first], dirs[first], info
 
 
 def _tsdf_points(loaded: LoadedRun, scene: Scene, num_points: int, progress: bool,
