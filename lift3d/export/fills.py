@@ -8,6 +8,7 @@ from every isosurface point.
 
 from __future__ import annotations
 
+from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
@@ -18,13 +19,28 @@ from lift3d.export.views import rendered_depth, view_depths
 from lift3d.export.visibility import train_frames, view_directions
 from lift3d.model.run import LoadedRun
 
+@dataclass(frozen=True)
+class FillRules:
+    """Where a fill keeps the rendered surface (:func:`_fill_holes`)."""
+
+    spacings: float = 3.0
+    """A rendered point fills a hole when it lies farther than this many point spacings (and the fill's gap) from
+    every isosurface point; the kept points are thinned to one per point spacing."""
+    smooth: float = 0.02
+    """A rendered depth counts when it agrees with its 3 × 3 median to within this share (not an edge between two
+    surfaces)."""
+    smooth_slack: float = 0.0
+    """… plus this (normalised units)."""
+
+
 #: Surface source, bounded scenes: the rendered surface within this share of the box's diagonal of the box's
 #: faces fills in where the isosurface has nothing (see :func:`box_face_fill`).
 BOX_FILL_MARGIN = 0.01
 
 
 def box_face_fill(loaded: LoadedRun, scene: Scene, x_surface: np.ndarray, cams, *, cache: dict | None = None,
-                  margin: float = BOX_FILL_MARGIN, min_gap: float = 0.0) -> tuple[np.ndarray, np.ndarray, dict[str, Any]]:
+                  margin: float = BOX_FILL_MARGIN, min_gap: float = 0.0, rules: FillRules = FillRules()
+                  ) -> tuple[np.ndarray, np.ndarray, dict[str, Any]]:
     """Points of the rendered surface next to a bounded scene's box where the isosurface has none.
 
     Rays stop at the scene box. A room's box hugs its walls, floor and ceiling, so the field need not build a
@@ -60,11 +76,12 @@ def box_face_fill(loaded: LoadedRun, scene: Scene, x_surface: np.ndarray, cams, 
         return np.minimum(p - lo, hi - p).min(1) <= near_face
 
     return _fill_holes(loaded, scene, x_surface, cams, near_box, info, cache=cache, min_gap=min_gap,
-                       smooth_slack=0.25 * near_face)
+                       rules=replace(rules, smooth_slack=0.25 * near_face))
 
 
-def thing_surface_fill(loaded: LoadedRun, scene: Scene, x_surface: np.ndarray, cams, *,
-                       cache: dict | None = None, min_gap: float = 0.0) -> tuple[np.ndarray, np.ndarray, dict[str, Any]]:
+def thing_surface_fill(loaded: LoadedRun, scene: Scene, x_surface: np.ndarray, cams, *, cache: dict | None = None,
+                       min_gap: float = 0.0, rules: FillRules = FillRules()
+                       ) -> tuple[np.ndarray, np.ndarray, dict[str, Any]]:
     """Points of the rendered surface of things where the isosurface has none.
 
     Without depth maps an object's density often stays below the isosurface's threshold on the faces few depth
@@ -88,20 +105,19 @@ def thing_surface_fill(loaded: LoadedRun, scene: Scene, x_surface: np.ndarray, c
         semantic = loaded.model.query_labels(p.astype(np.float32)).semantic
         return np.isin(semantic, things) & (scene.pseudo_labels(i).semantic[rows, cols] == semantic)
 
-    return _fill_holes(loaded, scene, x_surface, cams, is_thing, info, cache=cache, min_gap=min_gap)
+    return _fill_holes(loaded, scene, x_surface, cams, is_thing, info, cache=cache, min_gap=min_gap, rules=rules)
 
 
 def _fill_holes(loaded: LoadedRun, scene: Scene, x_surface: np.ndarray, cams, where, info: dict[str, Any], *,
-                cache: dict | None, min_gap: float, smooth_slack: float = 0.0
-                ) -> tuple[np.ndarray, np.ndarray, dict[str, Any]]:
+                cache: dict | None, min_gap: float, rules: FillRules) -> tuple[np.ndarray, np.ndarray, dict[str, Any]]:
     """The training views' rendered surface (views without a depth map) where ``where(points, view, rows, cols)``
     (``[K, 3]`` normalised points, the view's index and their ``[K]`` pixel rows and columns at full resolution →
     ``[K] bool``) and more than three point spacings (and ``min_gap``) from every point of ``x_surface``, thinned
-    to one per point spacing: ``(points, view directions, info)``.
+    to one per point spacing: ``(points, view directions, info)``. ``rules`` (:class:`FillRules`) holds the numbers.
 
     Each view is rendered (:func:`lift3d.export.views.rendered_depth`, shared with the label vote) and its depths
     back-projected where the opacity reaches one half and the depth agrees with its 3 × 3 median to within 2 %
-    (+ ``smooth_slack`` in normalised units): not an edge between two surfaces."""
+    (``rules.smooth``, + ``rules.smooth_slack`` in normalised units): not an edge between two surfaces."""
     from scipy.ndimage import median_filter
     from scipy.spatial import cKDTree
 
@@ -113,14 +129,14 @@ def _fill_holes(loaded: LoadedRun, scene: Scene, x_surface: np.ndarray, cams, wh
     spacing = typical_spacing(x_surface)
     if spacing <= 0:
         return empty, empty, info
-    gap = max(3.0 * spacing, float(min_gap))
+    gap = max(rules.spacings * spacing, float(min_gap))
     # these views without a depth map, at the downscale the label vote renders them at: one render each
     depths = view_depths(scene, frames, rendered_depth(loaded, scene, cache))
     scale = float(loaded.norm.scale)
     tree = cKDTree(x_surface)
     pts, dirs = [], []
     for i, (depth, ds) in depths.items():
-        smooth = np.abs(depth - median_filter(depth, size=3)) <= 0.02 * depth + smooth_slack / scale
+        smooth = np.abs(depth - median_filter(depth, size=3)) <= rules.smooth * depth + rules.smooth_slack / scale
         r, c = np.nonzero((depth > 0) & smooth)
         if not len(r):
             continue
