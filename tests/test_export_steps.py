@@ -83,6 +83,8 @@ def test_run_point_steps_records_what_ran_and_why_not():
         (False, "min_confidence 0: every point stays"), (False, "premise not shown: room"), (False, "off"),
         (True, "on")]
     assert records[-1].counts == {"removed": 0, "points_after": 4}
+    empty = PointState(_labelled(np.zeros((0, 3)), []))
+    assert ViewVote().skip(empty, _context()) == StuffCorners().skip(empty, _context()) == "no points"
 
 
 # ------------------------------------------------------------------------------------------ premises

@@ -79,15 +79,18 @@ class ExportStep(Step):
         name without dashes and ``no-`` (``voxel_size``, ``complete_corners``).
     why_needed : str
         Why the step needs its premises (docs/export.md).
+    needs_points : bool
+        The step has nothing to do without points (it is skipped, saying so).
     """
 
     switchable: ClassVar[bool] = True
     flags: ClassVar[dict[str, str]] = {}
     why_needed: ClassVar[str] = ""
+    needs_points: ClassVar[bool] = False
 
     def skip(self, state: PointState, context: StepContext) -> str | None:
         """Why the step does nothing on these points with these settings (None: it runs)."""
-        return None
+        return "no points" if self.needs_points and not len(state.points) else None
 
     def check(self) -> None:
         """Raise :class:`lift3d.errors.InputError` (naming the flag) for a setting out of range."""

@@ -37,6 +37,7 @@ class ViewVote(ExportStep):
 
     name = "view-vote"
     flags = {"enabled": "--no-view-vote"}
+    needs_points = True
     tolerance_links: float = 0.25
     """A view sees a point within this many of the source's link radii (half a field grid cell) of the view's depth
     there, plus ``rel_tolerance`` of that depth."""
@@ -48,9 +49,6 @@ class ViewVote(ExportStep):
     """Share of those votes the winning class needs."""
     max_points: int = VOTE_MAX_POINTS
     """The vote is taken on at most this many points; the rest follow their nearest."""
-
-    def skip(self, state: PointState, context: StepContext) -> str | None:
-        return None if len(state.points) else "no points"
 
     def apply(self, state: PointState, context: StepContext) -> dict:
         p, loaded = state.points, context.loaded

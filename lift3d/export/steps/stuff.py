@@ -62,6 +62,7 @@ class StuffCorners(ExportStep):
 
     name = "stuff-corners"
     needs = frozenset({"room"})
+    needs_points = True
     flags = {"enabled": "--no-complete-corners"}
     why_needed = ("it fits level and upright planes to the stuff classes (up from the training cameras) and makes "
                   "their meeting edges sharp: walls, floor and ceiling of a room; a street's stuff is not planes "
@@ -77,9 +78,6 @@ class StuffCorners(ExportStep):
     """Two planes make a corner when they meet at this angle or more (degrees)."""
     max_points: int = CORNER_FIT_POINTS
     """Planes are fitted to at most this many stuff points."""
-
-    def skip(self, state: PointState, context: StepContext) -> str | None:
-        return None if len(state.points) else "no points"
 
     def apply(self, state: PointState, context: StepContext) -> dict:
         p, loaded, scene = state.points, context.loaded, context.scene
