@@ -26,7 +26,8 @@ from lift3d.data.scene import Category, SceneWriter, Segment, load_scene
 from lift3d.errors import InputError
 from lift3d.export import export_run
 from lift3d.export.instances import assign_instances, voxel_downsample_majority
-from lift3d.export.mesh import choose_density_threshold, extract_labelled_mesh
+from lift3d.export.isosurface import choose_density_threshold
+from lift3d.export.mesh import extract_labelled_mesh
 from lift3d.export.pointcloud import OrientedBox, extract_labelled_points
 from lift3d.export.writers.pcd import read_pcd, write_pcd
 from lift3d.export.writers.semantickitti import read_semantickitti_label
@@ -171,7 +172,7 @@ def test_surface_points_lie_on_the_visible_surfaces(surface_points):
 def test_a_sheet_thinner_than_the_coarse_lattice_is_still_contoured(monkeypatch):
     """A wall one fine cell thick, lying between two coarse-lattice nodes (what depth supervision makes of
     a wall): the coarse pass sees zero on both sides and, at 64³, would skip it."""
-    from lift3d.export.mesh import DEFAULT_LATTICE, field_isosurface, lattice_resolution
+    from lift3d.export.isosurface import DEFAULT_LATTICE, field_isosurface, lattice_resolution
 
     model = _tiny_model()
     monkeypatch.setattr(type(model.field), "finest_resolution", property(lambda f: 128))  # claims 128³ detail
@@ -199,7 +200,7 @@ def test_isosurface_equals_contouring_every_lattice_node(resolution):
     are decoded (density 0 elsewhere by the Field contract)."""
     import pyvista as pv
 
-    from lift3d.export.mesh import field_density, field_isosurface
+    from lift3d.export.isosurface import field_density, field_isosurface
 
     model = _tiny_model()
     decoded = []
@@ -239,7 +240,7 @@ def test_automatic_threshold_matches_the_rendered_surface(analytic):
 def test_refinement_moves_vertices_onto_the_rendered_surface():
     """A ball whose density ramps linearly from 0 at radius R0 to P at R0 - W: a ray going inwards along
     the normal reaches opacity 0.5 where P s² / (2 W) = ln 2, deeper than a low isosurface."""
-    from lift3d.export.mesh import field_isosurface, refine_to_rendered_surface
+    from lift3d.export.isosurface import field_isosurface, refine_to_rendered_surface
 
     r0, width, peak, tau = 0.5, 0.05, 100.0, 10.0
     model = _tiny_model()
@@ -269,7 +270,7 @@ def test_refinement_moves_vertices_onto_the_rendered_surface():
 def test_refinement_leaves_crevice_vertices_alone():
     """Two parallel slabs one voxel apart: the short ray of a vertex facing the gap starts inside the other
     slab (σ ≥ τ at its first sample), so that vertex must not jump onto the neighbour."""
-    from lift3d.export.mesh import field_isosurface, refine_to_rendered_surface
+    from lift3d.export.isosurface import field_isosurface, refine_to_rendered_surface
 
     model = _tiny_model()
     voxel = 2.0 / 64
@@ -367,10 +368,10 @@ def test_box_fill_adds_the_rendered_surface_where_a_soft_wall_at_the_box_has_no_
     kw = dict(num_points=20000, min_support_views=0, density_threshold=100.0, frame="normalized")
     plain = extract_labelled_points(loaded, analytic.scene, box_fill=False, **kw)
     filled = extract_labelled_points(loaded, analytic.scene, **kw)
-    assert not (plain.xyz[:, 0] > 0.9).any() and "box_fill" not in plain.thresholds
+    assert not (plain.xyz[:, 0] > 0.9).any() and plain.record("box-fill")["why"] == "off"
     wall = filled.xyz[:, 0] > 0.9
     assert wall.sum() > 200 and filled.xyz[wall, 0].min() > 0.96 - 1e-3
-    assert filled.thresholds["box_fill"]["points"] >= wall.sum()
+    assert filled.record("box-fill")["counts"]["points"] >= wall.sum()
     # the solids keep their isosurface: nothing is added next to them
     balls = ~wall
     assert abs(int(balls.sum()) - len(plain.xyz)) <= 0.02 * len(plain.xyz)
@@ -405,18 +406,18 @@ def test_thing_fill_adds_the_rendered_surface_of_a_soft_thing_where_the_views_la
         voxels = extract_labelled_points(loaded, things_seen, voxel_size=0.02, **kw)
     # The views render the ball and label it a thing: its front faces come back, as the thing, one instance.
     on_b = near_b(filled)
-    assert on_b.sum() > 40 and filled.thresholds["thing_fill"]["points"] >= on_b.sum()
+    assert on_b.sum() > 40 and filled.record("thing-fill")["counts"]["points"] >= on_b.sum()
     assert (filled.semantic[on_b] == THING).all() and len(np.unique(filled.instance[on_b])) == 1
     # Nothing else is added: shell A keeps its isosurface points only.
     assert abs(int((~on_b).sum()) - len(plain.xyz)) <= 0.02 * len(plain.xyz)
     # Without the fill, or where the views' 2D labels call it stuff, the ball has no points.
-    assert not near_b(plain).any() and "thing_fill" not in plain.thresholds
-    assert not near_b(stuff_seen).any() and stuff_seen.thresholds["thing_fill"]["points"] == 0
+    assert not near_b(plain).any() and not plain.record("thing-fill")["ran"]
+    assert not near_b(stuff_seen).any() and stuff_seen.record("thing-fill")["counts"]["points"] == 0
     # Voxel down-sampling keeps track of which points were filled: the pieces of the sparse filled ball (tiny views)
     # join each other.
-    import lift3d.export.pointcloud as pointcloud
+    import lift3d.export.steps.instances as instance_steps
 
-    monkeypatch.setattr(pointcloud, "join_filled_instances", lambda xyz, sem, inst, filled, radius: (inst, 0))
+    monkeypatch.setattr(instance_steps, "join_filled_instances", lambda xyz, sem, inst, filled, radius: (inst, 0))
     with dense_uniform_samples(model):
         apart = extract_labelled_points(loaded, things_seen, voxel_size=0.02, **kw)
     pieces = len(np.unique(voxels.instance[near_b(voxels)]))
@@ -459,7 +460,10 @@ def test_unbounded_scene_is_contoured_in_contracted_space_and_cropped(tmp_path):
     assert near_ball[:, :2].any(1).all(), "every point lies on the foreground or the background ball"
     assert near_ball[:, 0].sum() > 1000 and near_ball[:, 1].sum() > 100
     assert np.abs(pts.xyz).max() <= 4.0 + 1e-3, "far background beyond the export radius is skipped"
-    assert "thing_fill" not in pts.thresholds, "streets get no thing fill (docs/export.md)"
+    # streets get no fills and no corner step (docs/export.md): an unbounded run shows none of their premises
+    for name in ("box-fill", "thing-fill", "stuff-corners"):
+        assert pts.record(name)["why"].startswith("premise not shown"), name
+    assert pts.stats["premises"]["shown"] == []
 
 
 def test_obb_crop_keeps_exactly_the_points_inside(analytic, surface_points):
@@ -576,7 +580,9 @@ def test_outlier_removal_keeps_a_subset_and_records_its_settings(analytic, surfa
     assert 0 < len(pts) < len(surface_points)
     before = {tuple(p) for p in surface_points.xyz.round(5).tolist()}
     assert all(tuple(p) in before for p in pts.xyz.round(5).tolist())
-    assert pts.thresholds["outliers"] == {"nb_neighbors": 20, "std_ratio": 0.5}
+    record = pts.record("outlier-removal")
+    assert record["ran"] and record["settings"] == {"enabled": True, "neighbours": 20, "std_ratio": 0.5}
+    assert record["counts"]["removed"] > 0 and record["counts"]["points_after"] >= len(pts)
 
 
 def test_bad_options_are_input_errors(analytic):
@@ -834,8 +840,8 @@ def test_cli_fill_switches_reach_the_point_export(tiny_run, tmp_path, monkeypatc
 
     seen = []
 
-    def fake(*args, **kwargs):
-        seen.append((kwargs.get("box_fill", True), kwargs.get("thing_fill", True)))
+    def fake(loaded, scene, points, **kwargs):
+        seen.append((points.step("box-fill").enabled, points.step("thing-fill").enabled))
         raise InputError("fake", "stop here")
 
     monkeypatch.setattr(pointcloud, "extract_labelled_points", fake)

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from lift3d.data.scene import load_scene
-from lift3d.export.views import view_depths, view_label_counts, vote_labels, vote_point_labels
+from lift3d.export.views import VoteRules, view_depths, view_label_counts, vote_labels, vote_point_labels
 from lift3d.synth import make_scene
 
 
@@ -85,14 +85,14 @@ def test_export_records_the_vote_for_points_and_mesh_and_can_skip_it(tiny_run, t
     for flag, out in (([], tmp_path / "on"), (["--no-view-vote"], tmp_path / "off")):
         assert main(["export", "--run", str(tiny_run), "--pointcloud", "--mesh", "--resolution", "32",
                      "--num-points", "4000", "--output-dir", str(out), "--quiet", *flag]) == 0
-    on = json.loads((tmp_path / "on" / "metadata.json").read_text())["thresholds"]
-    off = json.loads((tmp_path / "off" / "metadata.json").read_text())["thresholds"]
+    on, off = (json.loads((tmp_path / k / "metadata.json").read_text()) for k in ("on", "off"))
+    vote, off_vote = (next(r for r in m["steps"]["points"] if r["name"] == "view-vote") for m in (on, off))
     keys = {"changed", "changes", "views", "rendered", "median_votes", "min_views", "share", "measured"}
-    assert keys <= set(on["points"]["view_vote"]) and keys <= set(on["mesh"]["view_vote"])
+    assert keys <= set(vote["counts"]) and keys <= set(on["thresholds"]["mesh"]["view_vote"])
     # the mesh votes within the point cloud's tolerance, whatever its own resolution
-    assert on["mesh"]["view_vote"]["abs_tolerance"] == pytest.approx(on["points"]["view_vote"]["abs_tolerance"],
-                                                                      rel=1e-6)
-    assert "view_vote" not in off["points"] and "view_vote" not in off["mesh"]
+    assert on["thresholds"]["mesh"]["view_vote"]["abs_tolerance"] == pytest.approx(vote["counts"]["abs_tolerance"],
+                                                                                    rel=1e-6)
+    assert off_vote["why"] == "off" and "view_vote" not in off["thresholds"]["mesh"]
 
 
 def test_an_export_of_points_and_mesh_renders_each_view_once_for_the_vote(tiny_run, tmp_path, monkeypatch):
@@ -118,8 +118,9 @@ def test_an_export_of_points_and_mesh_renders_each_view_once_for_the_vote(tiny_r
                          loaded=loaded, scene=scene)
     frames = sorted(int(i) for i in scene.split("train"))
     assert sorted(rendered) == frames  # once each, not once for the points and again for the mesh
-    meta = json.loads((tmp_path / "both" / "metadata.json").read_text())["thresholds"]
-    assert meta["points"]["view_vote"]["rendered"] == meta["mesh"]["view_vote"]["rendered"] == len(frames)
+    meta = json.loads((tmp_path / "both" / "metadata.json").read_text())
+    vote = next(r for r in meta["steps"]["points"] if r["name"] == "view-vote")
+    assert vote["counts"]["rendered"] == meta["thresholds"]["mesh"]["view_vote"]["rendered"] == len(frames)
     assert "mesh.ply" in summary["files"]
 
 
@@ -146,7 +147,7 @@ def test_a_subsample_gives_nearly_the_same_answer(room):
     frames = room.split("train")
     full, _ = vote_point_labels(xyz, wrong, room, frames, None, 0.03, targets=room.stuff_ids)
     part, stats = vote_point_labels(xyz, wrong, room, frames, None, 0.03, targets=room.stuff_ids,
-                                    max_points=len(xyz) // 4)
+                                    rules=VoteRules(max_points=len(xyz) // 4))
     assert stats["measured"] == len(xyz) // 4
     changed = full != wrong
     assert changed.sum() > 100 and np.mean(part[changed] == full[changed]) > 0.85

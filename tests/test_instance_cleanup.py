@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from lift3d.data.cameras import Cameras, look_at
-from lift3d.export.cleanup import clean_instances, merge_fragments, segment_votes
+from lift3d.export.cleanup import CleanupRules, clean_instances, merge_fragments, segment_votes
 
 W = H = 64
 
@@ -137,12 +137,14 @@ def test_an_instance_the_field_is_unsure_of_folds_into_the_surface_it_lies_on():
     cams = _views()
     kwargs = dict(cameras=cams, frames=np.arange(3), segments_of=lambda f: np.zeros((H, W), np.int64),
                   link_radius=0.1, crumb_points=10, confidence=confidence)
-    sem, inst, keep, stats = clean_instances(xyz, xyz, semantic, instance, min_confidence=0.7, **kwargs)
+    sem, inst, keep, stats = clean_instances(xyz, xyz, semantic, instance, rules=CleanupRules(min_confidence=0.7),
+                                             **kwargs)
     assert keep.all()
     assert (inst[4000:4200] == 0).all() and (sem[4000:4200] == 1).all(), "the unsure patch becomes wall"
     assert (inst[4200:] == 1).all() and (sem[4200:] == 7).all(), "the confident object stays, renumbered 1"
     assert stats["unsure"] == 1 and stats["instances_after"] == 1
-    _, inst_off, _, stats_off = clean_instances(xyz, xyz, semantic, instance, min_confidence=0.0, **kwargs)
+    _, inst_off, _, stats_off = clean_instances(xyz, xyz, semantic, instance, rules=CleanupRules(min_confidence=0.0),
+                                                **kwargs)
     assert stats_off["unsure"] == 0 and stats_off["instances_after"] == 2
 
 
@@ -171,7 +173,7 @@ def test_unsure_instances_with_nothing_sure_around_them_stay():
     sem, inst, keep, stats = clean_instances(
         xyz, xyz, semantic, instance, cameras=_views(), frames=np.arange(3),
         segments_of=lambda f: np.zeros((H, W), np.int64), link_radius=0.1, crumb_points=10,
-        confidence=np.full(600, 0.3), min_confidence=0.7)
+        confidence=np.full(600, 0.3), rules=CleanupRules(min_confidence=0.7))
     assert keep.all() and stats["unsure"] == 2 and stats["instances_after"] == 2
     assert (sem == semantic).all()
 
@@ -204,18 +206,21 @@ def test_an_instance_no_2d_thing_segment_confirms_folds_and_a_confirmed_one_stay
     cams = _views()
     maps = _segment_maps(cams, [(11, -1.0, -0.6)])
     kwargs = dict(cameras=cams, frames=np.arange(3), segments_of=lambda f: maps[f], link_radius=0.1,
-                  crumb_points=10, confidence=np.full(4400, 0.95), min_confidence=0.7)
-    sem, inst, keep, stats = clean_instances(xyz, xyz, semantic, instance, min_support_views=1, **kwargs)
+                  crumb_points=10, confidence=np.full(4400, 0.95))
+    sem, inst, keep, stats = clean_instances(xyz, xyz, semantic, instance, **kwargs,
+                                             rules=CleanupRules(min_support_views=1, min_confidence=0.7))
     assert keep.all()
     assert (inst[4000:4200] == 0).all() and (sem[4000:4200] == 1).all(), "the unconfirmed patch becomes wall"
     assert (inst[4200:] == 1).all() and (sem[4200:] == 7).all(), "the confirmed object stays, renumbered 1"
     assert stats["min_support_views"] == 1 and stats["unsupported"] == 1 and stats["instances_after"] == 1
     # Asking for more confirming views than the object has (3) folds it too, but with nothing around it
     # to fold into it keeps its points and its id.
-    _, inst4, keep4, stats4 = clean_instances(xyz, xyz, semantic, instance, min_support_views=4, **kwargs)
+    _, inst4, keep4, stats4 = clean_instances(xyz, xyz, semantic, instance, **kwargs,
+                                              rules=CleanupRules(min_support_views=4, min_confidence=0.7))
     assert stats4["unsupported"] == 2 and stats4["instances_after"] == 1 and keep4.all()
     assert (inst4[4000:4200] == 0).all() and (inst4[4200:] == 1).all()
-    _, _, _, stats_off = clean_instances(xyz, xyz, semantic, instance, min_support_views=0, **kwargs)
+    _, _, _, stats_off = clean_instances(xyz, xyz, semantic, instance, **kwargs,
+                                         rules=CleanupRules(min_support_views=0, min_confidence=0.7))
     assert stats_off["unsupported"] == 0 and stats_off["instances_after"] == 2
 
 

@@ -140,10 +140,12 @@ def test_export_records_the_step_and_can_skip_it(tiny_run, tmp_path):
     for flag, out in (([], tmp_path / "on"), (["--no-complete-corners"], tmp_path / "off")):
         assert main(["export", "--run", str(tiny_run), "--pointcloud", "--num-points", "4000", "--output-dir",
                      str(out), "--quiet", *flag]) == 0
-    on = json.loads((tmp_path / "on" / "metadata.json").read_text())["thresholds"]["points"]
-    off = json.loads((tmp_path / "off" / "metadata.json").read_text())["thresholds"]["points"]
-    assert {"planes", "corner_planes", "corner_points", "added", "radius", "threshold"} <= set(on["stuff_corners"])
-    assert "stuff_corners" not in off
+    on, off = ({r["name"]: r for r in json.loads((tmp_path / k / "metadata.json").read_text())["steps"]["points"]}
+               for k in ("on", "off"))
+    step = on["stuff-corners"]
+    assert step["ran"] and step["needs"] == ["room"] and step["settings"]["plane_threshold"] == 0.004
+    assert {"planes", "corner_planes", "corner_points", "added", "radius", "threshold"} <= set(step["counts"])
+    assert not off["stuff-corners"]["ran"] and off["stuff-corners"]["why"] == "off"
 
 
 def test_a_ceiling_the_views_barely_see_still_takes_its_edge(room):
@@ -170,6 +172,7 @@ def test_projections_respect_the_crop_box_and_the_voxel_size(tiny_run, monkeypat
     """The step adds points after the crop and the voxel grid: its projections must honour both. A stand-in
     step projects every stuff point twice, once far outside the box and once beside itself."""
     import lift3d.export.pointcloud as pc
+    import lift3d.export.steps.stuff as stuff_steps
     from lift3d.model.run import load_run
 
     def stand_in(xyz, semantic, stuff_ids, radius, threshold, **kw):
@@ -178,14 +181,14 @@ def test_projections_respect_the_crop_box_and_the_voxel_size(tiny_run, monkeypat
         return (np.ones(len(xyz), bool), np.r_[idx, idx], new, np.r_[semantic[idx], semantic[idx]],
                 {"corner_points": len(idx)})
 
-    monkeypatch.setattr(pc, "complete_stuff_corners", stand_in)
+    monkeypatch.setattr(stuff_steps, "complete_stuff_corners", stand_in)
     loaded = load_run(tiny_run, device="cpu")
     scene = loaded.scene()
     lo, hi = np.asarray(loaded.norm.aabb_world, np.float64)
     box = {"center": ((lo + hi) / 2).tolist(), "R": np.eye(3).tolist(), "scale": (hi - lo).tolist()}
     voxel = 0.05
     pts = pc.extract_labelled_points(loaded, scene, num_points=3000, obb=box, voxel_size=voxel, view_vote=False)
-    assert pts.thresholds["stuff_corners"]["corner_points"] > 0
+    assert pts.record("stuff-corners")["counts"]["corner_points"] > 0
     assert pc.OrientedBox.coerce(box).contains(pts.xyz).all()
     keys = np.floor(pts.xyz / voxel).astype(np.int64)
     assert len(np.unique(keys, axis=0)) == len(keys)

@@ -114,20 +114,10 @@ def test_export_records_the_step_for_points_and_mesh_and_can_skip_it(tiny_run, t
                      "--num-points", "4000", "--output-dir", str(out), "--quiet", *flag]) == 0
     on = json.loads((tmp_path / "on" / "metadata.json").read_text())
     off = json.loads((tmp_path / "off" / "metadata.json").read_text())
-
-    def find(d):
-        if isinstance(d, dict):
-            if "stuff_orientation" in d:
-                return d["stuff_orientation"]
-            for v in d.values():
-                r = find(v)
-                if r is not None:
-                    return r
-        return None
-
-    step = find(on["thresholds"]["points"])
-    assert step is not None and {"moved", "moves", "radius", "cone_degrees"} <= set(step)
+    step = next(r for r in on["steps"]["points"] if r["name"] == "stuff-orientation")
+    assert step["ran"] and {"moved", "moves", "radius", "cone_degrees"} <= set(step["counts"])
     mesh_step = on["thresholds"]["mesh"]["stuff_orientation"]
     # The mesh labels its edges over the point cloud's distance, whatever its own resolution.
-    assert mesh_step["radius"] == pytest.approx(step["radius"], rel=1e-6)
-    assert find(off) is None
+    assert mesh_step["radius"] == pytest.approx(step["counts"]["radius"], rel=1e-6)
+    assert next(r for r in off["steps"]["points"] if r["name"] == "stuff-orientation")["why"] == "off"
+    assert "stuff_orientation" not in off["thresholds"]["mesh"]

@@ -1,11 +1,11 @@
-"""Which training camera sees a surface point (lift3d.export.mesh.CameraVisibility)."""
+"""Which training camera sees a surface point (lift3d.export.visibility.CameraVisibility)."""
 
 import math
 
 import numpy as np
 
 from lift3d.data.cameras import Cameras, look_at
-from lift3d.export.mesh import CameraVisibility
+from lift3d.export.visibility import CameraVisibility
 
 VOXEL = 0.05
 

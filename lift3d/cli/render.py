@@ -69,16 +69,15 @@ def run(args: argparse.Namespace) -> int:
     """Render, then print one line saying what was written where."""
     # here, not at module level: keeps `lift3d --help` cheap (torch)
     from lift3d.render.images import MIN_SEGMENT_FRACTION
-    from lift3d.export.renders import render_to_folder
+    from lift3d.export.renders import FrameSettings, render_to_folder
     from lift3d.utils.device import set_threads
 
     set_threads(args.threads)
     res = render_to_folder(
         args.run, args.output_dir, args.outputs, split=args.split, camera_path=args.camera_path, data=args.data,
-        downscale=args.downscale, chunk_size=args.chunk_size, device=args.device, previews=not args.no_previews,
-        progress=not args.quiet,
-        min_segment_fraction=MIN_SEGMENT_FRACTION if args.min_segment_fraction is None else args.min_segment_fraction,
-        instances=args.instances,
+        frames=FrameSettings(args.downscale, args.chunk_size, MIN_SEGMENT_FRACTION if args.min_segment_fraction is None
+                             else args.min_segment_fraction),
+        device=args.device, previews=not args.no_previews, progress=not args.quiet, instances=args.instances,
     )
     what = f"camera path {args.camera_path}" if args.camera_path else f"split {args.split}"
     print(f"lift3d render: {len(res.stems)} frames of {what} ({res.size[1]}x{res.size[0]}) in {res.seconds:.1f} s "

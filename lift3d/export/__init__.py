@@ -2,9 +2,16 @@
 
 Modules:
 
-- :mod:`lift3d.export.pointcloud` — :func:`extract_labelled_points` (surface or rays source, filters);
-- :mod:`lift3d.export.mesh` — density threshold, chunked density grid, isosurface, camera visibility,
-  :func:`~lift3d.export.mesh.extract_labelled_mesh`;
+- :mod:`lift3d.export.pointcloud` — :func:`extract_labelled_points` (a source, then the steps);
+- :mod:`lift3d.export.sources` — where the points come from (surface, tsdf, rays);
+- :mod:`lift3d.export.steps` — the point steps in order (fills, heads, filters, label votes, stuff, instances), their
+  flags and the premises they need;
+- :mod:`lift3d.export.points` — :class:`LabelledPoints` (the points the steps pass on), the crop box;
+- :mod:`lift3d.export.isosurface` — density threshold, chunked density grid, isosurface and its refinement;
+- :mod:`lift3d.export.visibility` — training frames and cameras, which camera sees a surface point;
+- :mod:`lift3d.export.fills` — the rendered surface where the isosurface has a hole (box faces, things);
+- :mod:`lift3d.export.frames` — world or normalised output coordinates;
+- :mod:`lift3d.export.mesh` — :func:`~lift3d.export.mesh.extract_labelled_mesh`, the labelled isosurface;
 - :mod:`lift3d.export.instances` — label heads at points, stable instance ids, per-instance records;
 - :mod:`lift3d.export.writers` — the ``--format`` registry: one writer class per file format (PLY and its
   CloudCompare flavour, PCD, SemanticKITTI, ROS 2 bag, OctoMap, Nav2 map);
@@ -35,6 +42,7 @@ import dataclasses
 import re
 import sys
 import time
+from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
@@ -51,25 +59,37 @@ from lift3d.utils.files import check_writable
 
 if TYPE_CHECKING:  # torch-backed types, for annotations only (see the module docstring)
     from lift3d.data.scene import Scene
+    from lift3d.export.pointcloud import PointSettings
     from lift3d.model.run import LoadedRun
 
-__all__ = ["export_run", "extract_labelled_points", "LabelledPoints", "benchmark_export", "ExportOptions"]
+__all__ = ["export_run", "extract_labelled_points", "LabelledPoints", "PointSettings", "MeshSettings",
+           "benchmark_export", "ExportOptions"]
 
 
 def __getattr__(name: str):
-    if name in ("extract_labelled_points", "LabelledPoints", "benchmark_export", "OrientedBox"):
+    if name in ("extract_labelled_points", "LabelledPoints", "PointSettings", "benchmark_export", "OrientedBox"):
         from lift3d.export import pointcloud  # on first use: keeps `import lift3d.export` cheap
 
         return getattr(pointcloud, name)
     raise AttributeError(f"module 'lift3d.export' has no attribute {name!r}")
 
 
-def export_run(run: str | Path, output_dir: str | Path | None = None, *, pointcloud: bool = True, mesh: bool = False,
-               formats: tuple[str, ...] | list[str] = ("ply",), data: str | Path | None = None,
-               split_instances: bool = False, resolution: int = 256, options=None,
-               command: str | None = None, progress: bool = False, loaded: LoadedRun | None = None,
-               scene: Scene | None = None,
-               **point_options: Any) -> dict[str, Any]:
+@dataclass
+class MeshSettings:
+    """How ``mesh.ply`` is made (besides the density threshold, the refinement and the frame, which it shares with
+    the points)."""
+
+    resolution: int = 256
+    """Grid cells per axis."""
+    split_instances: bool = False
+    """Also write ``instances/<id>_<class>.ply``, one sub-mesh per instance."""
+
+
+def export_run(run: str | Path, output_dir: str | Path | None = None, *, pointcloud: bool = True,
+               mesh: bool | MeshSettings = False, formats: tuple[str, ...] | list[str] = ("ply",), options=None,
+               points: PointSettings | None = None, command: str | None = None, progress: bool = False,
+               loaded: LoadedRun | None = None, scene: Scene | str | Path | None = None,
+               **settings: Any) -> dict[str, Any]:
     """Export a trained run's labelled geometry into ``output_dir`` (every file written atomically).
 
     Parameters
@@ -78,29 +98,32 @@ def export_run(run: str | Path, output_dir: str | Path | None = None, *, pointcl
         Run folder.
     output_dir : str or Path, optional
         Destination (created); default ``<run>/export``.
-    pointcloud, mesh : bool
-        What to export.
+    pointcloud : bool
+        Export the points.
+    mesh : bool or MeshSettings
+        Export the mesh (True: at the default :class:`MeshSettings`).
     formats : sequence of str
         Names of :data:`lift3d.export.writers.WRITERS`: ``ply`` (``points.ply``), ``ply-cloudcompare``,
         ``pcd``, ``label`` (SemanticKITTI), ``ros2bag``, ``octomap``, ``nav2``. Optional libraries are checked
         before any work starts.
-    data : str or Path, optional
-        The scene folder, when it moved since training.
-    split_instances : bool
-        With ``mesh``: also write ``instances/<id>_<class>.ply``, one sub-mesh per instance.
-    resolution : int
-        Mesh grid cells per axis.
     options : lift3d.export.writers.ExportOptions, optional
         Settings of the format writers (ROS frame id, map resolution, up axis, floor classes, ...).
+    points : lift3d.export.pointcloud.PointSettings, optional
+        The point source, the steps and the profile (the frame, density threshold and refinement are the mesh's
+        too); default from ``settings``.
     command : str, optional
         Recorded in ``metadata.json`` (default: this process's command line).
-    loaded, scene : optional
-        An already loaded run and scene (skips loading).
-    **point_options
-        Passed to :func:`~lift3d.export.pointcloud.extract_labelled_points` (``source``, ``num_points``,
-        ``frame``, ``density_threshold``, ``refine_surface``, ``min_confidence``, ``voxel_size``,
-        ``remove_outliers``, ``std_ratio``, ``obb``, ``min_points``, ``box_fill``, ``thing_fill``,
-        ``complete_corners``, ``device``).
+    progress : bool
+    loaded : LoadedRun, optional
+        The run, already loaded.
+    scene : Scene or str or Path, optional
+        Its scene, already loaded, or the scene folder when it moved since training.
+    **settings
+        ``device`` (load the run there), ``data`` (= ``scene`` as a folder), ``resolution`` and
+        ``split_instances`` (:class:`MeshSettings`, with ``mesh=True``), and instead of ``points`` the keywords of
+        :meth:`~lift3d.export.pointcloud.PointSettings.from_options` (``source``, ``num_points``, ``frame``,
+        ``density_threshold``, ``refine_surface``, ``voxel_size``, ``obb``, ``min_points``, ``box_fill``,
+        ``complete_corners``, ``profile`` ...).
 
     Returns
     -------
@@ -110,20 +133,31 @@ def export_run(run: str | Path, output_dir: str | Path | None = None, *, pointcl
     # torch-backed modules load here, not at import: keeps `import lift3d.export` cheap
     from lift3d.export.instances import instance_records
     from lift3d.export.mesh import extract_labelled_mesh, match_instance_ids
-    from lift3d.export.pointcloud import extract_labelled_points
+    from lift3d.export.pointcloud import PointSettings, extract_labelled_points
+    from lift3d.export.steps.options import keyword_settings
     from lift3d.model.run import load_run
 
+    device = settings.pop("device", None)
+    data = settings.pop("data", None)
+    mesh_settings = mesh if isinstance(mesh, MeshSettings) else MeshSettings(
+        **{k: settings.pop(k) for k in ("resolution", "split_instances") if k in settings})
+    given = dict(settings)
+    if points is None:
+        points = PointSettings.from_options(**settings)
+    elif settings:
+        raise TypeError(f"export_run: give points or keyword settings, not both ({', '.join(settings)})")
     options = options if options is not None else ExportOptions()
     writers = check_formats(formats)  # unknown names and missing extras fail before any work
     if not pointcloud and not mesh:
         raise InputError("lift3d export", "nothing to export: give --pointcloud and/or --mesh")
     out = check_writable(output_dir if output_dir is not None else Path(run) / "export", folder=True)
     started = time.perf_counter()
+    points.check()
     if loaded is None:
-        loaded = load_run(run, point_options.get("device") or "auto")
-    if scene is None:
-        scene = loaded.scene(data)
-    frame = point_options.get("frame", "world")
+        loaded = load_run(run, device or "auto")
+    if scene is None or isinstance(scene, (str, Path)):
+        scene = loaded.scene(scene if scene is not None else data)
+    frame = points.frame
     units = "normalized scene units (world units x scale)" if frame == "normalized" else \
         "world units of transforms.json (metres for lift3d synth scenes)"
     classes = json_files.class_table(scene.categories, loaded.labels.semantic_ids)
@@ -138,16 +172,17 @@ def export_run(run: str | Path, output_dir: str | Path | None = None, *, pointcl
     pts = labelled = None
     view_depths: dict = {}  # the vote's renders of views without depth maps, done once for points and mesh
     if pointcloud:
-        pts = extract_labelled_points(loaded, scene, progress=progress, view_depth_cache=view_depths, **point_options)
+        pts = extract_labelled_points(loaded, scene, points, progress=progress, view_depth_cache=view_depths,
+                                      device=device)
         thresholds["points"] = pts.thresholds
         summary.update(points=len(pts), point_stats=pts.stats)
     if mesh:
-        labelled = extract_labelled_mesh(loaded, scene, resolution=resolution,
-                                         density_threshold=point_options.get("density_threshold"),
-                                         refine_surface=point_options.get("refine_surface", True), frame=frame,
-                                         min_points=point_options.get("min_points", 0),
-                                         orient_stuff=point_options.get("orient_stuff", True),
-                                         view_vote=point_options.get("view_vote", True),
+        labelled = extract_labelled_mesh(loaded, scene, resolution=mesh_settings.resolution,
+                                         density_threshold=points.source.density_threshold,
+                                         refine_surface=points.source.refine_surface, frame=frame,
+                                         min_points=points.step("instances").min_points,
+                                         orient_stuff=points.step("stuff-orientation").enabled,
+                                         view_vote=points.step("view-vote").enabled,
                                          view_depth_cache=view_depths, progress=progress)
         if pts is not None:
             match_instance_ids(labelled, pts.xyz, pts.semantic, pts.instance)
@@ -157,7 +192,7 @@ def export_run(run: str | Path, output_dir: str | Path | None = None, *, pointcl
         written.append("mesh.ply")
         thresholds["mesh"] = labelled.thresholds
         summary.update(mesh_vertices=int(len(labelled.vertices)), mesh_faces=int(len(labelled.faces)))
-        if split_instances:
+        if mesh_settings.split_instances:
             written += _write_instance_meshes(out / "instances", labelled, names)
     # Instances (and the scene graph) come from the points, or from the mesh vertices with --mesh alone.
     if pts is not None:
@@ -168,8 +203,9 @@ def export_run(run: str | Path, output_dir: str | Path | None = None, *, pointcl
         source, link = "mesh vertices", labelled.thresholds.get("instance_link_radius")
     transform = np.asarray(pts.transform if pts is not None else labelled.transform)
     # The export's own length scale (about two field grid cells), for map cells when the user gave none.
-    if point_options.get("voxel_size"):
-        default_resolution, resolution_reason = float(point_options["voxel_size"]), "--voxel-size"
+    voxel_size = points.step("voxel-downsample").voxel_size
+    if voxel_size:
+        default_resolution, resolution_reason = float(voxel_size), "--voxel-size"
     elif link:
         default_resolution, resolution_reason = float(link), "the instance link radius (about two field grid cells)"
     else:
@@ -198,6 +234,7 @@ def export_run(run: str | Path, output_dir: str | Path | None = None, *, pointcl
         "units": units,
         "up": {"axis": up.tolist(), "reason": up_reason},
         "thresholds": thresholds,
+        **({"premises": pts.stats["premises"], "steps": {"points": pts.steps}} if pts is not None else {}),
         "formats": {"names": [w.name for w in writers], "options": dataclasses.asdict(options),
                     "map_resolution": ctx.resolution,
                     "map_resolution_reason": resolution_reason, **ctx.notes},
@@ -206,14 +243,25 @@ def export_run(run: str | Path, output_dir: str | Path | None = None, *, pointcl
         "command": command if command is not None else " ".join([Path(sys.argv[0]).name, *sys.argv[1:]]),
         "created": time.strftime("%Y-%m-%dT%H:%M:%S%z"),
         "files": sorted(written + ["metadata.json"]),
-        "options": {k: (v if isinstance(v, (int, float, str, bool, type(None))) else str(v))
-                    for k, v in point_options.items()},
+        "options": {k: (list(v) if isinstance(v, tuple) else v if isinstance(v, (int, float, str, bool, type(None)))
+                        else str(v)) for k, v in _options(points, keyword_settings(), given, device).items()},
         "counts": {k: summary[k] for k in ("points", "instances", "mesh_vertices", "mesh_faces") if k in summary},
     }
     json_files.write_metadata_json(out / "metadata.json", metadata)
     written.append("metadata.json")
     summary["seconds"] = time.perf_counter() - started
     return summary
+
+
+def _options(points, keywords: dict[str, tuple[str, str]], given: dict[str, Any], device) -> dict[str, Any]:
+    """``metadata.json``'s ``options``: the source's settings, the profile, and each step setting that has a Python
+    keyword (its older flag's name) by that keyword, whatever way they were given."""
+    out: dict[str, Any] = {**dataclasses.asdict(points.source), "profile": points.profile, "device": device}
+    for key, (step, setting) in keywords.items():
+        value = getattr(points.step(step), setting)
+        if value is not None or key in given:
+            out[key] = value
+    return out
 
 
 def _world_cell(transform, frame: str) -> float:

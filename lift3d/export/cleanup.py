@@ -25,7 +25,7 @@ fix that, using the views the field was trained from:
    the majority (class, instance) of the points around it (within ``4 × link_radius``, outside crumbs) and
    disappears into it; with no such point a crumb is dropped.
 
-Counts before and after each step go to the export's ``metadata.json`` (``thresholds.points.instances``).
+Counts before and after each step go to the export's ``metadata.json`` (the ``instance-cleanup`` step's record).
 
 Examples
 --------
@@ -40,6 +40,7 @@ Two fragments (instances 1 and 2) that one 2D segment covers in both views merge
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from typing import Any, Callable
 
 import numpy as np
@@ -257,11 +258,28 @@ def count_instances(instance: np.ndarray) -> int:
     return int(len(np.unique(instance[instance > 0])))
 
 
+@dataclass(frozen=True)
+class CleanupRules:
+    """What :func:`clean_instances` merges and folds (module docstring)."""
+
+    merge: bool = True
+    """Merge fragments (step 1); off, no instances merge."""
+    max_views: int = 24
+    """Voting views, evenly spread over the training views."""
+    min_share: float = MERGE_MIN_SHARE
+    """Share of the views seeing two same-class instances in which one 2D segment must hold both to merge them."""
+    min_views: int = 2
+    """Fewest views that must see both for them to merge."""
+    min_support_views: int = 0
+    """Instances confirmed by the 2D thing segments in fewer of the voting views fold like crumbs (step 2; 0 = off)."""
+    min_confidence: float = 0.0
+    """Instances (after merging) whose points' mean class probability is below this fold like crumbs (0 = off)."""
+
+
 def clean_instances(xyz: np.ndarray, xyz_world: np.ndarray, semantic: np.ndarray, instance: np.ndarray, *,
                     cameras, frames: np.ndarray, segments_of: Callable[[int], np.ndarray], link_radius: float,
-                    crumb_points: int, merge: bool = True, max_views: int = 24, min_share: float = MERGE_MIN_SHARE,
-                    min_views: int = 2, min_support_views: int = 0, confidence: np.ndarray | None = None,
-                    min_confidence: float = 0.0) -> tuple[np.ndarray, np.ndarray, np.ndarray, dict[str, Any]]:
+                    crumb_points: int, rules: CleanupRules = CleanupRules(), confidence: np.ndarray | None = None
+                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, dict[str, Any]]:
     """Merge fragments, then fold crumbs and unsure instances (see the module docstring).
 
     Parameters
@@ -278,16 +296,10 @@ def clean_instances(xyz: np.ndarray, xyz_world: np.ndarray, semantic: np.ndarray
         The instance link radius; crumbs look for their neighbour within 4 × this.
     crumb_points : int
         Instances with fewer points are crumbs (0 = keep every instance).
-    merge : bool
-        Merge fragments (step 1); off, no instances merge.
-    min_support_views : int
-        Instances confirmed by the 2D thing segments in fewer of the voting views fold like crumbs (step 2;
-        0 = off).
+    rules : CleanupRules
+        What merges and what else folds like crumbs.
     confidence : np.ndarray, optional
-        ``[N]`` probability of each point's class; needed when ``min_confidence`` > 0.
-    min_confidence : float
-        Instances (after merging) whose points' mean class probability is below this fold like crumbs
-        (0 = off).
+        ``[N]`` probability of each point's class; needed when ``rules.min_confidence`` > 0.
 
     Returns
     -------
@@ -295,6 +307,8 @@ def clean_instances(xyz: np.ndarray, xyz_world: np.ndarray, semantic: np.ndarray
         Instance ids contiguous ``1..K`` by size as :func:`~lift3d.export.instances.assign_instances` gives
         them; ``keep`` False for dropped crumbs; ``stats`` the counts for ``metadata.json``.
     """
+    merge, max_views, min_share, min_views = rules.merge, rules.max_views, rules.min_share, rules.min_views
+    min_support_views, min_confidence = rules.min_support_views, rules.min_confidence
     semantic = np.asarray(semantic, np.int32).copy()
     instance = np.asarray(instance, np.int64)
     stats: dict[str, Any] = {"instances_before": count_instances(instance), "fragments_merged": 0,

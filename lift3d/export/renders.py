@@ -43,6 +43,19 @@ class RenderResult:
     instances_from: str = "field"  # "export", "field" or "field (<why not the export>)"
 
 
+@dataclass(frozen=True)
+class FrameSettings:
+    """How each frame is rendered."""
+
+    downscale: int = 1
+    """Render every ``downscale``-th pixel block (images ``downscale`` times smaller)."""
+    chunk_size: int | None = None
+    """Rays per rendering chunk (memory vs. speed); default from the run's config."""
+    min_segment_fraction: float = MIN_SEGMENT_FRACTION
+    """Thing segments under this fraction of a frame take their surroundings' labels
+    (:func:`lift3d.render.images.merge_small_segments`; 0 writes the raw argmax labels)."""
+
+
 def render_to_folder(
     run: str | Path,
     output_dir: str | Path,
@@ -51,12 +64,10 @@ def render_to_folder(
     split: str = "test",
     camera_path: str | Path | None = None,
     data: str | Path | None = None,
-    downscale: int = 1,
-    chunk_size: int | None = None,
+    frames: FrameSettings = FrameSettings(),
     device: str = "auto",
     previews: bool = True,
     progress: bool = True,
-    min_segment_fraction: float = MIN_SEGMENT_FRACTION,
     instances: str = INSTANCE_SOURCES[0],
 ) -> RenderResult:
     """Render a split of the run's scene (or a camera path) into ``output_dir``.
@@ -75,17 +86,12 @@ def render_to_folder(
         A camera path JSON (:func:`lift3d.render.output.load_camera_path`) to render instead of a split.
     data : str or Path, optional
         The scene folder, when it moved since training.
-    downscale : int
-        Render every ``downscale``-th pixel block (images ``downscale`` times smaller).
-    chunk_size : int, optional
-        Rays per rendering chunk (memory vs. speed); default from the run's config.
+    frames : FrameSettings
+        Downscale, rays per chunk and the small-segment rule.
     device : str
         ``auto``, ``cpu`` or ``cuda[:N]``.
     previews, progress : bool
         Colourised previews; progress bar.
-    min_segment_fraction : float
-        Thing segments under this fraction of a frame take their surroundings' labels
-        (:func:`lift3d.render.images.merge_small_segments`; 0 writes the raw argmax labels).
     instances : {"export", "field"}
         Instance ids of thing pixels: the exported objects' ids (default; extracting the cloud takes a few
         seconds; thing pixels no object of their class is near get 0), or the field's channels ``1..V``.
@@ -96,6 +102,7 @@ def render_to_folder(
     -------
     RenderResult
     """
+    downscale, chunk_size, min_segment_fraction = frames.downscale, frames.chunk_size, frames.min_segment_fraction
     if downscale < 1:
         raise InputError("--downscale", f"must be a positive integer (got {downscale})")
     check_min_segment_fraction(min_segment_fraction)

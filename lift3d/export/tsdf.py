@@ -1,6 +1,6 @@
 """A surface from what the training views agree on: their rendered depth fused into a TSDF.
 
-The density isosurface (:mod:`lift3d.export.mesh`) is whatever the field holds, including haze that only
+The density isosurface (:mod:`lift3d.export.isosurface`) is whatever the field holds, including haze that only
 one view ever needed. Fusing the *rendered* depth of every training view into a truncated signed distance
 volume (Curless & Levoy 1996; Open3D's TSDF integration, what nerfstudio's ``ns-export tsdf`` does)
 keeps a surface where the views' depths agree, and clears space that some view looks through: a floater in
@@ -11,7 +11,7 @@ Each training view is rendered as an ideal pinhole camera with its own focal len
 that keeps the total under ``max_rays``; pixels whose accumulated opacity is below ``min_opacity`` are not
 fused (the ray saw nothing). Depth is the opacity-normalised expected depth projected on the optical axis.
 Everything happens in the run's normalised coordinates, in a cube over the scene box ``[-1, 1]^3`` (bounded)
-or the foreground ``[-R, R]^3`` (unbounded, ``R`` = :data:`~lift3d.export.mesh.UNBOUNDED_MAX_RADIUS`; farther
+or the foreground ``[-R, R]^3`` (unbounded, ``R`` = :data:`~lift3d.export.isosurface.UNBOUNDED_MAX_RADIUS`; farther
 depths are not fused): voxels of the field's finest grid cell, at most :data:`TSDF_MAX_RESOLUTION` per
 side, truncation at ``trunc_voxels`` voxels. (A uniform volume: Open3D 0.20's ``ScalableTSDFVolume``
 extracts no surface at all here, not even from one view of a plane.)
@@ -29,7 +29,8 @@ import torch
 
 from lift3d.data.cameras import opengl_to_opencv
 from lift3d.data.scene import Scene
-from lift3d.export.mesh import UNBOUNDED_MAX_RADIUS, lattice_resolution, train_frames
+from lift3d.export.isosurface import UNBOUNDED_MAX_RADIUS, lattice_resolution
+from lift3d.export.visibility import train_frames
 from lift3d.model.run import LoadedRun
 from lift3d.utils.progress import progress_bar
 

@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import math
 import time
+from dataclasses import dataclass
 from typing import Any, Callable
 
 import numpy as np
@@ -135,15 +136,25 @@ def vote_labels(semantic: np.ndarray, counts: np.ndarray, class_ids: np.ndarray,
     return out, changed
 
 
+@dataclass(frozen=True)
+class VoteRules:
+    """How the views vote (module docstring); the defaults are the module constants."""
+
+    min_views: int = VOTE_MIN_VIEWS
+    share: float = VOTE_SHARE
+    rel_tolerance: float = VOTE_REL_TOLERANCE
+    max_rays: int = VOTE_MAX_RAYS
+    max_points: int = VOTE_MAX_POINTS
+    seed: int = 0
+
+
 def vote_point_labels(xyz_world: np.ndarray, semantic: np.ndarray, scene: Scene, frames,
-                      render: Callable[[int, int], np.ndarray] | None, abs_tolerance: float, *,
-                      min_views: int = VOTE_MIN_VIEWS, share: float = VOTE_SHARE,
-                      rel_tolerance: float = VOTE_REL_TOLERANCE, targets=None, max_rays: int = VOTE_MAX_RAYS,
-                      max_points: int = VOTE_MAX_POINTS, seed: int = 0) -> tuple[np.ndarray, dict[str, Any]]:
+                      render: Callable[[int, int], np.ndarray] | None, abs_tolerance: float, *, targets=None,
+                      rules: VoteRules = VoteRules()) -> tuple[np.ndarray, dict[str, Any]]:
     """The export step: labels of ``xyz_world`` after the training views' vote, and what it did.
 
-    With more than ``max_points`` points the vote is taken on a random subset of that many (fixed ``seed``);
-    every other point follows its nearest measured point when that one had its class and changed.
+    With more than ``rules.max_points`` points the vote is taken on a random subset of that many (fixed
+    ``rules.seed``); every other point follows its nearest measured point when that one had its class and changed.
 
     Returns
     -------
@@ -155,13 +166,14 @@ def vote_point_labels(xyz_world: np.ndarray, semantic: np.ndarray, scene: Scene,
         ``metadata.json``.
     """
     t0 = time.perf_counter()
+    min_views, share, rel_tolerance, max_points = rules.min_views, rules.share, rules.rel_tolerance, rules.max_points
     semantic = np.asarray(semantic)
     xyz_world = np.asarray(xyz_world, np.float64)
-    depths = view_depths(scene, frames, render, max_rays)
+    depths = view_depths(scene, frames, render, rules.max_rays)
     class_ids = np.asarray(sorted(c.id for c in scene.categories if c.id != 0), np.int64)
     measured = np.arange(len(semantic))
     if len(semantic) > max_points:
-        measured = np.sort(np.random.default_rng(seed).choice(len(semantic), max_points, replace=False))
+        measured = np.sort(np.random.default_rng(rules.seed).choice(len(semantic), max_points, replace=False))
     new = semantic[measured].copy()
     votes = np.zeros(len(measured), np.int64)
     for s in range(0, len(measured), VOTE_CHUNK):
@@ -220,15 +232,16 @@ def rendered_depth(loaded, scene: Scene, cache: dict | None = None) -> Callable[
 
 
 def vote_stuff_labels(xyz_world: np.ndarray, semantic: np.ndarray, channel: np.ndarray, loaded, scene: Scene,
-                      frames, abs_tolerance: float, depth_cache: dict | None = None
+                      frames, abs_tolerance: float, depth_cache: dict | None = None, rules: VoteRules = VoteRules()
                       ) -> tuple[np.ndarray, np.ndarray, dict[str, Any]]:
     """The export step (points and mesh vertices): :func:`vote_point_labels` with the field's rendered depth
     for views without a depth map, giving stuff classes only (a thing needs an instance, which a vote cannot
     give); a point that leaves a thing class leaves its instance channel too.
 
-    ``depth_cache``: see :func:`rendered_depth`. Returns the new ``semantic`` and ``channel`` ``[N]`` and the
+    ``depth_cache``: see :func:`rendered_depth`; ``rules``: :class:`VoteRules`. Returns the new ``semantic`` and
+    ``channel`` ``[N]`` and the
     step's record for ``metadata.json``.
     """
     semantic, stats = vote_point_labels(xyz_world, semantic, scene, frames, rendered_depth(loaded, scene, depth_cache),
-                                        abs_tolerance=abs_tolerance, targets=scene.stuff_ids)
+                                        abs_tolerance=abs_tolerance, targets=scene.stuff_ids, rules=rules)
     return semantic, np.where(np.isin(semantic, scene.stuff_ids), 0, channel), stats

@@ -1,0 +1,162 @@
+"""Steps that keep a subset of the points or move them all: the confidence filter, the output frame, the crop box,
+outlier removal and voxel down-sampling."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field, replace
+from typing import Any
+
+import numpy as np
+
+from lift3d.errors import InputError
+from lift3d.export.frames import check_frame, to_frame
+from lift3d.export.instances import voxel_downsample_majority
+from lift3d.export.points import OrientedBox
+from lift3d.export.steps.base import ExportStep, PointState, StepContext
+
+
+@dataclass
+class ConfidenceFilter(ExportStep):
+    """Points whose chosen class has a lower probability than ``min_confidence`` are dropped."""
+
+    name = "confidence-filter"
+    flags = {"min_confidence": "--min-confidence"}
+    min_confidence: float = 0.0
+    """Drop points whose class probability is below this (0 = keep all)."""
+
+    def check(self) -> None:
+        if not 0.0 <= self.min_confidence <= 1.0:
+            raise InputError("--min-confidence", f"must be in [0, 1], got {self.min_confidence}")
+
+    def skip(self, state: PointState, context: StepContext) -> str | None:
+        return None if self.min_confidence > 0 else "min_confidence 0: every point stays"
+
+    def apply(self, state: PointState, context: StepContext) -> dict:
+        p = state.points
+        keep = p.confidence >= self.min_confidence
+        state.points = p.take(keep)
+        return {"removed": int(len(keep) - keep.sum())}
+
+
+@dataclass
+class FrameConversion(ExportStep):
+    """The points move from the field's normalised coordinates into the output frame."""
+
+    name = "frame-conversion"
+    switchable = False
+    flags = {"frame": "--frame"}
+    frame: str = field(default="world", metadata={"choices": ("world", "normalized")})
+    """Output coordinates: world (the input poses' frame) or normalized (the field's, the foreground box is
+    [-1, 1]^3)."""
+
+    def check(self) -> None:
+        check_frame(self.frame)
+
+    def apply(self, state: PointState, context: StepContext) -> dict:
+        p = state.points
+        state.points = replace(p, xyz=to_frame(p.xyz, context.transform, self.frame), frame=self.frame)
+        return {"frame": self.frame}
+
+
+@dataclass
+class Crop(ExportStep):
+    """Only the points inside an oriented box (output frame) stay: nerfstudio's ``--obb-*`` convention, rotation
+    as roll, pitch, yaw in radians about x, y, z (``R = Rz(yaw) Ry(pitch) Rx(roll)``)."""
+
+    name = "crop"
+    flags = {"center": "--obb-center", "rotation": "--obb-rotation", "scale": "--obb-scale"}
+    center: tuple[float, float, float] | None = None
+    """Crop box centre (default 0 0 0)."""
+    rotation: tuple[float, float, float] | None = None
+    """Crop box rotation: roll, pitch, yaw in radians (default 0 0 0)."""
+    scale: tuple[float, float, float] | None = None
+    """Crop box side lengths: the box is used when they are given."""
+    box: Any = field(default=None, metadata={"flag": False})
+    """Python only (``obb=``): an OrientedBox, an Open3D OrientedBoundingBox or a dict with center, rotation, scale;
+    used instead of the three settings above."""
+
+    def oriented_box(self) -> OrientedBox | None:
+        """The crop box, or None when no box is given."""
+        if self.box is not None:
+            return OrientedBox.coerce(self.box)
+        if self.scale is None:
+            return None
+        return OrientedBox.from_params(self.center or (0, 0, 0), self.rotation or (0, 0, 0), self.scale)
+
+    def check(self) -> None:
+        if self.box is None and self.scale is None and (self.center is not None or self.rotation is not None):
+            raise InputError("--obb-scale", "a crop box needs its side lengths (--obb-scale SX SY SZ)")
+        self.oriented_box()  # checks the side lengths
+
+    def skip(self, state: PointState, context: StepContext) -> str | None:
+        return None if self.box is not None or self.scale is not None else "no crop box"
+
+    def apply(self, state: PointState, context: StepContext) -> dict:
+        box = self.oriented_box()
+        inside = box.contains(state.points.xyz)
+        state.points, state.crop = state.points.take(inside), box
+        return {"box": {"center": box.center.tolist(), "R": box.R.tolist(), "scale": box.scale.tolist()},
+                "removed": int(len(inside) - inside.sum())}
+
+
+@dataclass
+class OutlierRemoval(ExportStep):
+    """Open3D's statistical outlier removal: a point goes when its mean distance to its neighbours is more than
+    ``std_ratio`` standard deviations above the average."""
+
+    name = "outlier-removal"
+    flags = {"enabled": "--remove-outliers", "std_ratio": "--std-ratio"}
+    enabled: bool = False
+    neighbours: int = 20
+    """Neighbours per point (nerfstudio and Open3D's tutorial use 20)."""
+    std_ratio: float = 2.0
+    """Outlier threshold in standard deviations."""
+
+    def check(self) -> None:
+        if self.std_ratio <= 0:
+            raise InputError("--std-ratio", f"must be > 0, got {self.std_ratio}")
+
+    def skip(self, state: PointState, context: StepContext) -> str | None:
+        return None if len(state.points) > self.neighbours else "no more points than neighbours"
+
+    def apply(self, state: PointState, context: StepContext) -> dict:
+        import open3d as o3d
+
+        p = state.points
+        cloud = o3d.geometry.PointCloud(o3d.utility.Vector3dVector(p.xyz))
+        _, kept = cloud.remove_statistical_outlier(nb_neighbors=self.neighbours, std_ratio=float(self.std_ratio))
+        state.points = p.take(np.sort(np.asarray(kept, np.int64)))
+        return {"removed": len(p) - len(state.points)}
+
+
+@dataclass
+class VoxelDownsample(ExportStep):
+    """One point per voxel: position and colour the voxel means, (class, instance channel) the majority, confidence
+    the mean of the majority's points (:func:`lift3d.export.instances.voxel_downsample_majority`)."""
+
+    name = "voxel-downsample"
+    flags = {"voxel_size": "--voxel-size"}
+    voxel_size: float = 0.0
+    """Voxel side in output units (0 = off)."""
+
+    def check(self) -> None:
+        if self.voxel_size < 0 or not math.isfinite(self.voxel_size):
+            raise InputError("--voxel-size", f"must be a finite size >= 0, got {self.voxel_size}")
+
+    def skip(self, state: PointState, context: StepContext) -> str | None:
+        return None if self.voxel_size > 0 else "voxel_size 0: every point stays"
+
+    def apply(self, state: PointState, context: StepContext) -> dict:
+        from scipy.spatial import cKDTree
+
+        p = state.points
+        state.voxel_size = float(self.voxel_size)
+        if not len(p):
+            return {"voxels": 0}
+        xyz, rgb, semantic, channel, confidence = voxel_downsample_majority(p.xyz, p.rgb, p.semantic, p.channel,
+                                                                            p.confidence, self.voxel_size)
+        filled = p.filled[cKDTree(p.xyz).query(xyz)[1]] if p.filled.any() else np.zeros(len(xyz), bool)
+        state.points = replace(p, xyz=xyz, rgb=rgb, semantic=semantic, channel=channel, confidence=confidence,
+                               filled=filled)
+        return {"voxels": len(xyz)}
