@@ -747,6 +747,24 @@ def test_open3d_poses_and_intrinsics_round_trip(tmp_path, poses):
         np.testing.assert_allclose(mine, theirs[ok], atol=1e-5)
 
 
+def test_frame_step_keeps_every_nth_frame_before_the_test_split(tmp_path):
+    import dataclasses
+
+    root = tmp_path / "o3d"
+    stems, c2ws, _ = open3d_folder(root, n=5)
+    scene = convert_open3d(root, tmp_path / "out", predictions=root / "pred", test_every=2,
+                           options=dataclasses.replace(QUIET, frame_step=2))
+    assert [f.name for f in scene.frames] == stems[::2]  # frames 0, 2, 4
+    np.testing.assert_allclose(scene.cameras.c2w_opencv, c2ws[::2], atol=1e-7)  # each keeps its own pose
+    np.testing.assert_allclose(scene.depth(1), cv2.imread(str(root / "depth" / f"{stems[2]}.png"),
+                                                          cv2.IMREAD_UNCHANGED) / 1000.0, atol=1e-6)
+    # the test split is every 2nd of the frames kept, not of the source's
+    assert [scene.frames[i].name for i in scene.split("test")] == [stems[0], stems[4]]
+    with pytest.raises(InputError, match="--frame-step"):
+        convert_open3d(root, tmp_path / "out2", predictions=root / "pred",
+                       options=dataclasses.replace(QUIET, frame_step=0))
+
+
 def test_open3d_primesense_only_by_name(tmp_path):
     root = tmp_path / "o3d"
     open3d_folder(root)

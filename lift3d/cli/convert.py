@@ -96,6 +96,9 @@ def add_parser(subparsers: argparse._SubParsersAction, verb: str) -> argparse.Ar
     p.add_argument("--downscale", type=int, default=1, metavar="N",
                    help="shrink images, labels and depth by N: each output pixel is one NxN block (mean colour, "
                         "majority label, median valid depth; intrinsics divided by N) (default: %(default)s)")
+    p.add_argument("--frame-step", type=int, default=1, metavar="N",
+                   help="keep every N-th frame of the source (in capture order; before --test-every splits what "
+                        "is kept): a video-rate capture's neighbours add little but time (default: %(default)s)")
     p.add_argument("--image-format", choices=["png", "jpg"], default="png",
                    help="format of the written images (default: %(default)s, lossless)")
     p.add_argument("--overwrite", action="store_true",
@@ -121,7 +124,8 @@ def run(args: argparse.Namespace) -> int:
     if args.depth_as_gt and args.no_depth:
         raise InputError("--depth-as-gt", "keeps the depth maps that --no-depth leaves out: give one of them")
     options = WriteOptions(downscale=args.downscale, image_ext=f".{args.image_format}",
-                           depth_scale=args.depth_scale, overwrite=args.overwrite, depth_as_gt=args.depth_as_gt)
+                           depth_scale=args.depth_scale, overwrite=args.overwrite, depth_as_gt=args.depth_as_gt,
+                           frame_step=args.frame_step)
     _reject_foreign_flags(args)
 
     if args.source == "colmap":

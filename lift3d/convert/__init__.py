@@ -132,9 +132,11 @@ class WriteOptions:
     """Options shared by every source (see ``lift3d convert --help``).
 
     ``depth_as_gt`` writes the source's depth maps as the frames' ``gt_depth_file_path`` (evaluation only)
-    instead of ``depth_file_path`` (which training reads)."""
+    instead of ``depth_file_path`` (which training reads). ``frame_step`` keeps every N-th frame of the
+    source, in its order, before the splits are made (:func:`every_nth`)."""
 
     downscale: int = 1
+    frame_step: int = 1
     image_ext: str = ".png"
     depth_scale: float = 1e-3
     overwrite: bool = False
@@ -175,6 +177,20 @@ def generic_categories(ids: Iterable[int], things: Sequence[int]) -> list[Catego
     thing_set = set(int(t) for t in things)
     return [Category(int(i), f"class_{int(i)}", int(i) in thing_set, distinct_color(k))
             for k, i in enumerate(sorted(set(int(i) for i in ids) - {0}))]
+
+
+def every_nth(items: Sequence, step: int) -> list:
+    """Frames 0, N, 2N, ... of a source (``--frame-step``): a video-rate capture's neighbours add little but
+    time. Readers apply it to their frames in capture order, before :func:`split_every`.
+
+    Examples
+    --------
+    >>> every_nth(list("abcdefg"), 3)
+    ['a', 'd', 'g']
+    """
+    if step < 1:
+        raise InputError("--frame-step", f"must be a positive integer (got {step})")
+    return list(items)[::step]
 
 
 def split_every(names: Sequence[str], test_every: int) -> dict[str, list[str]]:

@@ -28,7 +28,7 @@ from typing import Callable
 
 import numpy as np
 
-from lift3d.convert import FrameInput, WriteOptions, note, split_every, write_scene
+from lift3d.convert import FrameInput, WriteOptions, every_nth, note, split_every, write_scene
 from lift3d.convert.predictions import PredictionFolder
 from lift3d.data.scene import Category, Scene, load_scene
 from lift3d.data.stereo import SparsePoints, write_sparse_points
@@ -600,7 +600,7 @@ def convert(
         raise InputError(images_dir, "image folder not found")
     preds = PredictionFolder(predictions, categories, things)
 
-    ordered = sorted(model.images.values(), key=lambda im: im.name)
+    ordered = every_nth(sorted(model.images.values(), key=lambda im: im.name), (options or WriteOptions()).frame_step)
     kinds = {}
     for img in ordered:
         kinds[img.camera_id] = camera_to_lift3d(model.cameras[img.camera_id], model.path / f"cameras.{model.format}")
@@ -638,8 +638,8 @@ def convert(
         centers = np.stack([f.c2w_opencv[:3, 3] for f in frames])
         box = scene_box_from_points(points.xyz, centers)
     on_disk = sum(1 for p in images_dir.rglob("*") if p.suffix.lower() in (".jpg", ".jpeg", ".png"))
-    if on_disk > len(frames):
-        note(f"{on_disk - len(frames)} images in {images_dir} are not registered in the COLMAP model "
+    if on_disk > len(model.images):
+        note(f"{on_disk - len(model.images)} images in {images_dir} are not registered in the COLMAP model "
              "and are left out")
     scene = write_scene(out, frames, cats, camera_model=camera_model, splits=split_every(stems, test_every),
                         scene_box=box, options=options,

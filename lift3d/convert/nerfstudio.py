@@ -44,7 +44,7 @@ from typing import Any, Callable
 
 import numpy as np
 
-from lift3d.convert import FrameInput, WriteOptions, note, split_every, write_scene
+from lift3d.convert import FrameInput, WriteOptions, every_nth, note, split_every, write_scene
 from lift3d.convert.predictions import PredictionFolder
 from lift3d.convert.scannet import natural_key
 from lift3d.data.cameras import is_rigid, opengl_to_opencv
@@ -458,6 +458,7 @@ def convert(
     if len(present) < len(raw):
         note(f"{len(raw) - len(present)} of {len(raw)} frames listed in {tpath.name} have no image: skipped")
     present.sort(key=lambda item: natural_key(_split_key(item[1]["file_path"])))
+    present = every_nth(present, opts.frame_step)
     for key, template in _IGNORED.items():
         if key in meta:
             note(f"{key} ignored: {template.format(value=meta[key])}")

@@ -44,7 +44,7 @@ from pathlib import Path
 
 import numpy as np
 
-from lift3d.convert import FrameInput, WriteOptions, note, split_every, write_scene
+from lift3d.convert import FrameInput, WriteOptions, every_nth, note, split_every, write_scene
 from lift3d.convert.scannet import half_pixel, list_frames, prediction_folder
 from lift3d.data.cameras import is_rigid
 from lift3d.data.scene import Category, Scene
@@ -378,6 +378,9 @@ def convert(
                 "scene/trajectory.log)" if pose_file.suffix.lower() == ".json" and len(c2w) < len(colour) else "")
         raise InputError(pose_file, f"has {len(c2w)} poses but {colour[0][1].parent} has {len(colour)} colour "
                                     f"frames (poses pair with frames in sorted order){hint}")
+    kept = every_nth(range(len(colour)), opts.frame_step)
+    colour, c2w = [colour[k] for k in kept], [c2w[k] for k in kept]
+    depth = [depth[k] for k in kept] if depth is not None else None
     stems = [s for s, _ in colour]
     preds, cats = prediction_folder(predictions, categories, things, stems, opts)
     frames = [FrameInput(

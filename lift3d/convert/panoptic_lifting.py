@@ -42,6 +42,7 @@ from lift3d.convert import (
     FrameInput,
     PanopticFrame,
     WriteOptions,
+    every_nth,
     generic_categories,
     note,
     split_every,
@@ -209,6 +210,7 @@ def convert(
         note(f"{skipped} frames have an invalid (-inf) pose and are left out")
     if not frames_raw:
         raise InputError(root / "pose", "no frame has a valid pose")
+    frames_raw = every_nth(frames_raw, (options or WriteOptions()).frame_step)
     stems = [s for s, _, _ in frames_raw]
     for stem in stems:
         for d in (sem_dir, inst_dir):

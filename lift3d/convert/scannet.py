@@ -23,7 +23,8 @@ from typing import Callable
 
 import numpy as np
 
-from lift3d.convert import FrameInput, WriteOptions, note, read_matrix_txt, read_pose_txt, split_every, write_scene
+from lift3d.convert import (FrameInput, WriteOptions, every_nth, note, read_matrix_txt, read_pose_txt, split_every,
+                            write_scene)
 from lift3d.convert.predictions import PredictionFolder
 from lift3d.data.scene import Category, Scene
 from lift3d.errors import InputError
@@ -150,6 +151,7 @@ def convert(
         note(f"{skipped} frames have an invalid (-inf) pose and are left out")
     if not frames_raw:
         raise InputError(root / "pose", "no frame has a valid pose")
+    frames_raw = every_nth(frames_raw, (options or WriteOptions()).frame_step)
     stems = [s for s, _, _ in frames_raw]
     preds, cats = prediction_folder(predictions, categories, things, stems, options)
     frames = []
