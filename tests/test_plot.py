@@ -487,3 +487,15 @@ def test_headless_linux_renders_through_egl_without_probing_x(monkeypatch):
     monkeypatch.delenv("DISPLAY")
     monkeypatch.setattr(ctypes.util, "find_library", lambda name: None)
     assert not points.prefer_headless_egl()
+
+
+def test_plot_takes_the_up_axis_the_export_recorded(tmp_path):
+    from lift3d.viz.points import resolve_plot_up, up_beside
+
+    ply = tmp_path / "points.ply"
+    assert up_beside(ply)[0] == "z" and resolve_plot_up("auto", ply) == "z"
+    (tmp_path / "metadata.json").write_text(json.dumps({"up": {"axis": [0.0, -1.0, 0.0], "reason": "cameras"}}))
+    assert up_beside(ply)[0] == "-y" and resolve_plot_up("auto", ply) == "-y"
+    assert resolve_plot_up("x", ply) == "x"  # the user's choice wins
+    (tmp_path / "metadata.json").write_text(json.dumps({"up": {"axis": "sideways"}}))
+    assert up_beside(ply)[0] == "z"

@@ -74,7 +74,9 @@ def add_parser(subparsers, verb: str) -> argparse.ArgumentParser:
     g.add_argument("--point-size", type=float, metavar="PX", help="point size in pixels (default: from density)")
     g.add_argument("--hide", default="", metavar="LIST", help="comma-separated class names or ids to leave out")
     g.add_argument("--no-cutaway", action="store_true", help="draw the walls and ceiling facing the camera too")
-    g.add_argument("--up", default="z", metavar="AXIS", help="the scene's up axis: x, y, z, -x, -y, -z (default: z)")
+    g.add_argument("--up", default="auto", metavar="AXIS",
+                   help="the scene's up axis: x, y, z, -x, -y, -z, or auto: the up axis the export recorded in "
+                        "metadata.json beside FILE (from the training cameras), else z (default: auto)")
     g = p.add_argument_group("run pictures (--run)")
     g.add_argument("--frames", type=int, default=3, metavar="N", help="views to show (default: 3)")
     g.add_argument("--split", default="test", choices=("train", "val", "test"), help="frames to show (default: test)")
@@ -139,7 +141,7 @@ def run(args: argparse.Namespace) -> int:
 
 def _plot_file(args: argparse.Namespace) -> list[Path]:
     # here, not at module level: keeps `lift3d --help` cheap
-    from lift3d.viz.points import VIEWS, plot_instances, save_turntable, save_views
+    from lift3d.viz.points import VIEWS, plot_instances, resolve_plot_up, save_turntable, save_views
 
     path = Path(args.file)
     if not path.is_file():
@@ -150,15 +152,16 @@ def _plot_file(args: argparse.Namespace) -> list[Path]:
     for v in views:
         if v not in VIEWS:
             raise InputError("--views", f"unknown view {v!r} (choose from {', '.join(VIEWS)}, or all)")
+    up = resolve_plot_up(args.up, path)
     common = dict(classes=args.classes, instances=args.instances, boxes=args.boxes, point_size=args.point_size,
-                  hide=_split_list(args.hide), cutaway=not args.no_cutaway, up=args.up)
+                  hide=_split_list(args.hide), cutaway=not args.no_cutaway, up=up)
     out_dir = Path(args.output_dir) if args.output_dir else path.parent / "plots"
     written: list[Path] = []
     if args.html:
         # here, not at module level: keeps `lift3d --help` cheap
         from lift3d.viz.html import write_html
 
-        return [write_html(path, args.html, classes=args.classes, up=args.up, hide=common["hide"],
+        return [write_html(path, args.html, classes=args.classes, up=up, hide=common["hide"],
                            point_size=args.point_size, max_points=args.html_max_points)]
     if args.show:
         size = tuple(args.window_size) if args.window_size else (1500, 650)

@@ -32,6 +32,8 @@ Examples
 
 from __future__ import annotations
 
+import json
+
 import math
 import os
 import sys
@@ -326,6 +328,35 @@ def _axis(up: str) -> np.ndarray:
     v = np.zeros(3)
     v["xyz".index(name)] = sign
     return v
+
+
+def up_beside(path: str | Path) -> tuple[str, str]:
+    """The up axis an export recorded for ``path`` (``metadata.json`` in its folder: ``up.axis``, a signed
+    unit axis), as ``x y z -x -y -z``, and where it came from; ``z`` when there is none.
+
+    Examples
+    --------
+    >>> up_beside("/nonexistent/points.ply")
+    ('z', 'no metadata.json beside the file: z')
+    """
+    meta_path = Path(path).parent / "metadata.json"
+    try:
+        axis = np.asarray(json.loads(meta_path.read_text(encoding="utf-8"))["up"]["axis"], float)
+    except (OSError, ValueError, KeyError, TypeError):
+        return "z", "no metadata.json beside the file: z"
+    if axis.shape != (3,) or not np.isfinite(axis).all() or not np.abs(axis).max() > 0:
+        return "z", f"{meta_path}: up.axis is not a 3-vector: z"
+    k = int(np.argmax(np.abs(axis)))
+    name = ("-" if axis[k] < 0 else "") + "xyz"[k]
+    return name, f"{meta_path.name}: {name}"
+
+
+def resolve_plot_up(up: str, path: str | Path | None) -> str:
+    """``auto`` → the export's recorded up axis (:func:`up_beside`), else ``up`` itself."""
+    if str(up).strip().lower() == "auto":
+        return up_beside(path)[0] if path is not None else "z"
+    _axis(up)
+    return up
 
 
 def view_camera(view: str, center: Sequence[float], radius: float, up: str = "z", *,
