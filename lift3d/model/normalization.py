@@ -134,7 +134,7 @@ def share_outside(aabb: np.ndarray, xyz: np.ndarray) -> float:
     return float(np.mean(np.any((xyz < aabb[0]) | (xyz > aabb[1]), axis=1)))
 
 
-def _optical_axes_focus(scene: Scene) -> tuple[np.ndarray, float]:
+def optical_axes_focus(scene: Scene) -> tuple[np.ndarray, float]:
     """Least-squares point closest to all optical axes, and how much in front of the cameras it is
     (fraction of cameras for which the point lies ahead)."""
     c = scene.cameras.centers
@@ -207,7 +207,7 @@ def infer_normalization(scene: Scene, margin: float = 1.05,
     elif content is not None and len(content.xyz):
         aabb, bounded, why = content_box(content, cams)
     else:
-        focus, ahead = _optical_axes_focus(scene)
+        focus, ahead = optical_axes_focus(scene)
         bounded = ahead > 0.8 and len(scene) > 2
         pts = np.vstack([cams, focus[None]]) if bounded else cams
         aabb = np.stack([pts.min(0), pts.max(0)])
