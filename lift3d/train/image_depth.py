@@ -281,7 +281,7 @@ def _plane_rows(scene: Scene, sparse: SparsePoints, dense: DenseDepth, frames: n
     from lift3d.sfm.mvs import scene_up
     from lift3d.sfm.planes import enclosed_segments, fit_planes, floor_boundary_points, label_support
     from lift3d.sfm.planes import ceiling_points, corner_cutters, point_classes, square_walls, wall_directions
-    from lift3d.sfm.planes import wall_reach
+    from lift3d.sfm.planes import floor_plane, height_above, wall_reach
     from lift3d.sfm.standing import standing_faces, stereo_agreement
 
     empty = (np.zeros(0, np.int64),) + (np.zeros(0, np.float32),) * 4 + (np.zeros(0, bool),)
@@ -326,11 +326,11 @@ def _plane_rows(scene: Scene, sparse: SparsePoints, dense: DenseDepth, frames: n
     if cfg.plane_floor_boundary and len(planes):
         # The floor fixes where the labels' wall-on-floor boundaries are in 3D: wall points without texture
         # (lift3d.sfm.planes.floor_boundary_points). Fitted again with them.
-        floor = _floor_plane(planes, up)
+        floor = floor_plane(planes, up)
         if floor is not None:
             f, n, d = floor
             walls = [c for c in stuff if c not in planes.classes[f]]
-            height = _height_above(thinned, n, d)
+            height = height_above(thinned, n, d)
             foot, foot_cls, foot_cam = floor_boundary_points(
                 scene.cameras, frames, labels, n, d, planes.classes[f], walls, step=2 * cfg.plane_threshold * diag,
                 max_height=height, tolerance=cfg.plane_threshold * diag)
@@ -342,22 +342,22 @@ def _plane_rows(scene: Scene, sparse: SparsePoints, dense: DenseDepth, frames: n
                 planes = fit(thinned, thinned_cls, cams, seen_xyz)
     if cfg.plane_corner_cutters and len(planes):
         # a plane across a corner, through the ends of its two walls, hides the corner and stops their reach
-        floor = _floor_plane(planes, up)
+        floor = floor_plane(planes, up)
         cut = corner_cutters(planes, thinned, thinned_cls, cfg.plane_threshold * diag,
                              floor[1] if floor is not None else up, scene.cameras.centers[frames].mean(0))
         info["corner_cutters_dropped"] = int(cut.sum())
         planes = planes.subset(~cut)
     if cfg.plane_floor_line_walls and len(planes):
         # far plain walls: their near feet were too few, but many views' boundaries agree in pixels
-        floor = _floor_plane(planes, up)
+        floor = floor_plane(planes, up)
         if floor is not None:
-            height = _height_above(thinned, floor[1], floor[2])
+            height = height_above(thinned, floor[1], floor[2])
             planes, found = _floor_line_walls(scene, frames, labels, planes, floor, stuff, cfg, diag, height,
                                               (cams, seen_xyz))
             info.update(found)
     if cfg.plane_square_walls and len(planes):
         # a plain wall's few stereo points turn its plane by a degree or more: rooms are mostly square
-        floor = _floor_plane(planes, up)
+        floor = floor_plane(planes, up)
         directions = wall_directions(planes, floor[1] if floor is not None else up)
         if directions is not None:
             planes, info["walls_squared"] = square_walls(planes, directions, thinned, cfg.plane_threshold * diag)
@@ -370,7 +370,7 @@ def _plane_rows(scene: Scene, sparse: SparsePoints, dense: DenseDepth, frames: n
     bounded = scene.scene_box is not None and scene.scene_box.type == "bounded"
     if cfg.plane_wall_reach and len(planes) and bounded:
         # a long wall few views see end-on has points on part of its length only (docs/sfm.md)
-        ground = _floor_plane(planes, up)
+        ground = floor_plane(planes, up)
         if ground is not None:
             f, fn, fd = ground
             floor_xyz, _, floor_cams = ceiling_points(scene.cameras, frames, labels, fn, fd, planes.classes[f],
@@ -393,13 +393,13 @@ def _plane_rows(scene: Scene, sparse: SparsePoints, dense: DenseDepth, frames: n
     # a window in a second wall: the plane holding the window class is the first wall's
     enclosable = sorted(set(stuff) if cfg.plane_enclosed_held else set(stuff) - held) if cfg.plane_enclosed else []
     faces = None
-    floor = _floor_plane(planes, up) if cfg.plane_standing and scene.thing_ids else None
+    floor = floor_plane(planes, up) if cfg.plane_standing and scene.thing_ids else None
     if floor is not None:
         # a plain cabinet: upright faces rising from where the labels put things on the floor
         f, fn, fd = floor
         faces = standing_faces(scene.cameras, frames, labels, fn, fd, planes.classes[f], scene.thing_ids, stuff,
                                threshold=cfg.plane_threshold * diag, step=0.5 * cfg.plane_threshold * diag,
-                               max_height=_height_above(thinned, fn, fd),
+                               max_height=height_above(thinned, fn, fd),
                                tolerance=2 * cfg.plane_threshold * diag)
         # a plant's leaves spread wider than its pot: where stereo matched a thing, its depths refute a face
         met, agreeing = stereo_agreement(faces, scene.cameras, [index[n] for n in dense.frame_names], labels,
@@ -485,69 +485,14 @@ def _plane_rows(scene: Scene, sparse: SparsePoints, dense: DenseDepth, frames: n
     return rows, info
 
 
-def _floor_plane(planes, up: np.ndarray) -> tuple[int, np.ndarray, float] | None:
-    """``(index, normal, offset)`` of the floor, the normal turned up: of the planes within 25° of level, the one
-    with most points (25°: the fit levels its planes to its own refined up, which may differ from the cameras'
-    mean up). None without a level plane."""
-    level = np.abs(planes.normal @ up) > np.cos(np.radians(25))
-    if not level.any():
-        return None
-    f = int(np.flatnonzero(level)[np.argmax(planes.inliers[level])])
-    n, d = planes.normal[f], float(planes.offset[f])
-    return (f, -n, -d) if n @ up < 0 else (f, n, d)
-
-
-def _height_above(points: np.ndarray, normal: np.ndarray, offset: float) -> float:
-    """How high the points reach above the floor ``normal · x + offset = 0`` (99th percentile; 0 without points):
-    the top of the vertical lines that the floor's boundaries with walls and things rise along."""
-    return float(np.percentile(points @ normal + offset, 99)) if len(points) else 0.0
-
-
-def wall_classes(planes, floor: int, up: np.ndarray, stuff) -> list[int]:
-    """The stuff classes that may stand on the floor as a wall: held by a vertical plane (within 10°) and not by
-    the floor plane ``floor`` — unless two or more vertical planes hold it: the floor plane also takes a wall
-    class when enough wall-labelled points lie at the wall's foot (tuning room 16), and that must not cost the
-    walls their floor line. A segmenter that repeats its mistakes paints ceiling or window above floor here
-    and there; the boundary of a class no wall plane holds is no wall's foot (one test room got a vertical
-    "ceiling" plane outside the room from it, which then kept its real ceiling from getting a plane).
-
-    Examples
-    --------
-    >>> from lift3d.sfm.planes import fit_planes
-    >>> floor = np.c_[np.random.default_rng(0).uniform(-2, 2, (200, 2)), np.zeros(200)]
-    >>> wall = np.c_[np.full(60, 2.0), np.random.default_rng(1).uniform([-2, 0], [2, 2.5], (60, 2))]
-    >>> planes = fit_planes(np.r_[floor, wall], np.r_[np.full(200, 2), np.full(60, 1)], [1, 2, 3], threshold=0.05,
-    ...                     min_points=8, up=np.array([0, 0, 1.0]))
-    >>> f = int(np.argmax(np.abs(planes.normal[:, 2])))
-    >>> wall_classes(planes, f, np.array([0, 0, 1.0]), [1, 2, 3])   # the ceiling (3) stands on nothing
-    [1]
-
-    Wall points along both walls' feet (the labels' floor line) make the floor plane hold the wall class too;
-    two walls hold it, so it still stands on the floor:
-
-    >>> foot = np.c_[np.r_[np.full(40, 2.0), np.linspace(-2, 2, 40)], np.r_[np.linspace(-2, 2, 40), np.full(40, 2.0)],
-    ...              np.zeros(80)]
-    >>> wall2 = np.c_[np.random.default_rng(2).uniform([-2, 0], [2, 2.5], (60, 2))[:, 0], np.full(60, 2.0),
-    ...               np.random.default_rng(3).uniform(0, 2.5, 60)]
-    >>> planes = fit_planes(np.r_[floor, wall, wall2, foot], np.r_[np.full(200, 2), np.full(200, 1)], [1, 2, 3],
-    ...                     threshold=0.05, min_points=8, up=np.array([0, 0, 1.0]))
-    >>> f = int(np.argmax(np.abs(planes.normal[:, 2])))
-    >>> sorted(planes.classes[f]), wall_classes(planes, f, np.array([0, 0, 1.0]), [1, 2, 3])
-    ([1, 2], [1])
-    """
-    vertical = planes.vertical(up)
-    walls = [c for c, v in zip(planes.classes, vertical) if v]
-    return [int(c) for c in stuff if sum(c in w for w in walls) >= (2 if c in planes.classes[floor] else 1)]
-
-
 def _floor_line_walls(scene: Scene, frames, labels, planes, floor, stuff, cfg: ImageDepthConfig, diag: float,
                       max_height: float, sightlines: tuple[np.ndarray, np.ndarray]):
     """The planes and the walls that the views' wall-on-floor boundaries agree on in pixels and no plane has yet
     (:func:`lift3d.sfm.planes.floor_line_walls`), in the walls' directions (the mean of the vertical planes'
     normals modulo a right angle, weighted by their points) and at right angles to them, of the classes
-    :func:`wall_classes` allows, added by :func:`lift3d.sfm.planes.add_walls`."""
+    :func:`lift3d.sfm.planes.wall_classes` allows, added by :func:`lift3d.sfm.planes.add_walls`."""
     # here, not at module level: keeps `import lift3d.train` cheap (lift3d.sfm loads OpenCV)
-    from lift3d.sfm.planes import add_walls, correct_walls, floor_line, floor_line_walls, wall_directions
+    from lift3d.sfm.planes import add_walls, correct_walls, floor_line, floor_line_walls, wall_classes, wall_directions
 
     f, n, d = floor
     directions = wall_directions(planes, n)
@@ -570,9 +515,9 @@ def _ceiling_plane(scene: Scene, frames, labels, planes, up, stuff, cfg: ImageDe
     """The planes and, when the labels' ceiling-on-wall boundaries and the walls found give the ceiling's height,
     a horizontal ceiling plane there over the points where the ceiling pixels' rays meet it (docs/sfm.md)."""
     # here, not at module level: keeps `import lift3d.train` cheap (lift3d.sfm loads OpenCV)
-    from lift3d.sfm.planes import ceiling_height
+    from lift3d.sfm.planes import ceiling_height, floor_plane, most_walls_hold
 
-    floor = _floor_plane(planes, up)
+    floor = floor_plane(planes, up)
     if floor is None:
         return planes, {}
     _, n, d = floor
@@ -587,7 +532,7 @@ def _ceiling_plane(scene: Scene, frames, labels, planes, up, stuff, cfg: ImageDe
                                                                    diag, sightlines)
         vertical = planes.vertical(n)
     for c in [c for c in stuff if not any(c in k for k, v in zip(planes.classes, vertical) if not v)
-              and not _most_walls_hold(planes, vertical, c)]:
+              and not most_walls_hold(planes, vertical, c)]:
         top, count = ceiling_height(scene.cameras, frames, labels, planes, n, d, [c],
                                     threshold=cfg.plane_threshold * diag, min_points=min_points)
         found["ceiling_boundary_points"] += count
@@ -600,12 +545,6 @@ def _ceiling_plane(scene: Scene, frames, labels, planes, up, stuff, cfg: ImageDe
         planes = grown
         found["ceiling_height"] = round(top, 4)
     return planes, found
-
-
-def _most_walls_hold(planes, vertical: np.ndarray, class_id: int) -> bool:
-    """Whether half the vertical planes (walls) or more hold ``class_id``: then it is a wall's class, not a
-    ceiling's (a few walls can hold the ceiling class from the points along their top edges)."""
-    return 2 * sum(class_id in k for k, v in zip(planes.classes, vertical) if v) >= vertical.sum()
 
 
 def _level_plane_over_pixels(scene: Scene, frames, labels, planes, normal: np.ndarray, offset: float, class_id: int,
@@ -640,6 +579,9 @@ def _extend_level_ceilings(scene: Scene, frames, labels, planes, n: np.ndarray, 
     ceiling (:func:`_ceiling_plane`), and those points become one more plane at the same place holding the
     class. A class that half the walls hold or more is not a ceiling's; a plane that more sight lines cross
     than end on over that reach is not added."""
+    # here, not at module level: keeps `import lift3d.train` cheap (lift3d.sfm loads OpenCV)
+    from lift3d.sfm.planes import most_walls_hold
+
     vertical = planes.vertical(n)
     eye = float(np.median(scene.cameras.centers[np.asarray(frames, np.int64)] @ n + d))
     extended = 0
@@ -647,7 +589,7 @@ def _extend_level_ceilings(scene: Scene, frames, labels, planes, n: np.ndarray, 
         if float(planes.origin[k] @ n + d) <= eye:
             continue
         for c in sorted(int(c) for c in planes.classes[k] if c in stuff):
-            if _most_walls_hold(planes, vertical, c):
+            if most_walls_hold(planes, vertical, c):
                 continue
             grown = _level_plane_over_pixels(scene, frames, labels, planes, planes.normal[k], float(planes.offset[k]),
                                              c, cfg, diag, sightlines)

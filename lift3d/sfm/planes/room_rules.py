@@ -340,6 +340,78 @@ def add_walls(planes: StuffPlanes, cameras, labels: dict[int, np.ndarray], line:
     return planes, added
 
 
+def floor_plane(planes: StuffPlanes, up: np.ndarray, max_tilt_deg: float = 25.0) -> tuple[int, np.ndarray, float] | None:
+    """``(index, normal, offset)`` of the floor, the normal turned up: of the planes within ``max_tilt_deg`` of level,
+    the one with most points (25°: the fit levels its planes to its own refined up, which may differ from the
+    cameras' mean up). None without a level plane.
+
+    Examples
+    --------
+    >>> level = StuffPlanes(np.array([[0, 0, -1.0], [0, 0, 1.0], [1.0, 0, 0]]), np.array([0.0, -2.5, 3.0]),
+    ...                     [frozenset({2}), frozenset({3}), frozenset({1})], np.zeros(3), np.array([500, 80, 200]),
+    ...                     np.zeros((3, 3)), np.zeros((3, 2, 3)), [])
+    >>> f, n, d = floor_plane(level, np.array([0, 0, 1.0]))   # the plane with most points, its normal turned up
+    >>> f, float(n[2]), d + 0.0
+    (0, 1.0, 0.0)
+    """
+    level = np.abs(planes.normal @ up) > np.cos(np.radians(max_tilt_deg))
+    if not level.any():
+        return None
+    f = int(np.flatnonzero(level)[np.argmax(planes.inliers[level])])
+    n, d = planes.normal[f], float(planes.offset[f])
+    return (f, -n, -d) if n @ up < 0 else (f, n, d)
+
+
+def height_above(points: np.ndarray, normal: np.ndarray, offset: float, percentile: float = 99.0) -> float:
+    """How high the points reach above the floor ``normal · x + offset = 0`` (their heights' ``percentile``; 0
+    without points): the top of the vertical lines that the floor's boundaries with walls and things rise along."""
+    return float(np.percentile(points @ normal + offset, percentile)) if len(points) else 0.0
+
+
+def wall_classes(planes: StuffPlanes, floor: int, up: np.ndarray, stuff) -> list[int]:
+    """The stuff classes that may stand on the floor as a wall: held by a vertical plane (within 10°) and not by
+    the floor plane ``floor`` — unless two or more vertical planes hold it: the floor plane also takes a wall
+    class when enough wall-labelled points lie at the wall's foot (tuning room 16), and that must not cost the
+    walls their floor line. A segmenter that repeats its mistakes paints ceiling or window above floor here
+    and there; the boundary of a class no wall plane holds is no wall's foot (one test room got a vertical
+    "ceiling" plane outside the room from it, which then kept its real ceiling from getting a plane).
+
+    Examples
+    --------
+    >>> from lift3d.sfm.planes import fit_planes
+    >>> floor = np.c_[np.random.default_rng(0).uniform(-2, 2, (200, 2)), np.zeros(200)]
+    >>> wall = np.c_[np.full(60, 2.0), np.random.default_rng(1).uniform([-2, 0], [2, 2.5], (60, 2))]
+    >>> planes = fit_planes(np.r_[floor, wall], np.r_[np.full(200, 2), np.full(60, 1)], [1, 2, 3], threshold=0.05,
+    ...                     min_points=8, up=np.array([0, 0, 1.0]))
+    >>> f = int(np.argmax(np.abs(planes.normal[:, 2])))
+    >>> wall_classes(planes, f, np.array([0, 0, 1.0]), [1, 2, 3])   # the ceiling (3) stands on nothing
+    [1]
+
+    Wall points along both walls' feet (the labels' floor line) make the floor plane hold the wall class too;
+    two walls hold it, so it still stands on the floor:
+
+    >>> foot = np.c_[np.r_[np.full(40, 2.0), np.linspace(-2, 2, 40)], np.r_[np.linspace(-2, 2, 40), np.full(40, 2.0)],
+    ...              np.zeros(80)]
+    >>> wall2 = np.c_[np.random.default_rng(2).uniform([-2, 0], [2, 2.5], (60, 2))[:, 0], np.full(60, 2.0),
+    ...               np.random.default_rng(3).uniform(0, 2.5, 60)]
+    >>> planes = fit_planes(np.r_[floor, wall, wall2, foot], np.r_[np.full(200, 2), np.full(200, 1)], [1, 2, 3],
+    ...                     threshold=0.05, min_points=8, up=np.array([0, 0, 1.0]))
+    >>> f = int(np.argmax(np.abs(planes.normal[:, 2])))
+    >>> sorted(planes.classes[f]), wall_classes(planes, f, np.array([0, 0, 1.0]), [1, 2, 3])
+    ([1, 2], [1])
+    """
+    vertical = planes.vertical(up)
+    walls = [c for c, v in zip(planes.classes, vertical) if v]
+    return [int(c) for c in stuff if sum(c in w for w in walls) >= (2 if c in planes.classes[floor] else 1)]
+
+
+def most_walls_hold(planes: StuffPlanes, vertical: np.ndarray, class_id: int, share: float = 0.5) -> bool:
+    """Whether at least ``share`` of the vertical planes (walls, ``vertical``: ``[P] bool``) hold ``class_id``: then
+    it is a wall's class, not a ceiling's (a few walls can hold the ceiling class from the points along their top
+    edges)."""
+    return sum(class_id in k for k, v in zip(planes.classes, vertical) if v) >= share * vertical.sum()
+
+
 def wall_directions(planes: StuffPlanes, up: np.ndarray, agree_deg: float = 1.5) -> np.ndarray | None:
     """``[2, 3]`` a room's two horizontal wall normals at right angles: the vertical planes' normals' mean
     direction modulo a right angle, weighted by their inliers, then again over the planes within ``agree_deg``
