@@ -9,8 +9,9 @@ from lift3d.data.scene import load_scene
 from lift3d.data.stereo import SparsePoints, write_sparse_points
 from lift3d.model.config import ImageDepthConfig
 from lift3d.data.cameras import Cameras
-from lift3d.sfm.planes import (add_walls, ceiling_height, ceiling_points, corner_cutters, correct_walls, fit_planes, floor_boundary_points,
-                               floor_line, floor_line_walls, point_classes)
+from lift3d.sfm.planes import (FitSettings, NewWalls, add_walls, ceiling_height, ceiling_points, corner_cutters,
+                               correct_walls, fit_planes, floor_boundary_points, floor_line, floor_line_walls,
+                               point_classes)
 from lift3d.synth import make_scene
 from lift3d.train.image_depth import image_depth_targets
 
@@ -226,7 +227,7 @@ def test_a_far_wall_whose_foot_the_views_see_at_their_top_edge_is_added_up_to_th
     walls = [w for w in floor_line_walls(line, np.array([[1.0, 0, 0]]), known, threshold=0.1) if abs(w[0][0]) == 1]
     assert len(walls) == 1 and -walls[0][1] * walls[0][0][0] == pytest.approx(6.0, abs=0.1)
     sight = (np.repeat(cams.centers, len(pts), 0), np.tile(pts, (8, 1)))
-    assert add_walls(known, cams, labels, line, walls, UP, 2.5, 0.1, sight, past_edge=False)[1] == 0
+    assert add_walls(known, cams, labels, line, walls, UP, 2.5, 0.1, sight, NewWalls(past_edge=False))[1] == 0
     planes, added = add_walls(known, cams, labels, line, walls, UP, 2.5, 0.1, sight)
     assert added == 1
     t, k = planes.first_hit(np.array([[0.0, 0.0, 2.2]]), np.array([[1.0, 0.0, 0.0]]))  # above what any view shows
@@ -246,7 +247,7 @@ def test_a_floor_line_wall_settles_onto_the_stereo_points_behind_its_foot():
     seen = np.r_[pts, on_wall]
     sight = (np.repeat(cams.centers, len(seen), 0), np.tile(seen, (8, 1)))
     for settle, x in [(True, 6.0), (False, 5.93)]:
-        planes, added = add_walls(known, cams, labels, line, inside, UP, 2.5, 0.1, sight, settle=settle)
+        planes, added = add_walls(known, cams, labels, line, inside, UP, 2.5, 0.1, sight, NewWalls(settle=settle))
         t, _ = planes.first_hit(np.array([[0.0, 0.0, 1.2]]), np.array([[1.0, 0.0, 0.0]]))
         assert added == 1 and t[0] == pytest.approx(x, abs=0.015)
 
@@ -507,7 +508,7 @@ def test_a_small_class_lying_on_a_plane_is_held_by_it():
     planes = fit_planes(pts, cls, [FLOOR, RUG], threshold=0.05, min_points=8, up=UP)
     assert len(planes) == 1 and planes.classes[0] == frozenset({FLOOR, RUG})
     assert fit_planes(pts, cls, [FLOOR, RUG], threshold=0.05, min_points=8, up=UP,
-                      min_class_cover=1.01).classes[0] == frozenset({FLOOR})
+                      settings=FitSettings(min_class_cover=1.01)).classes[0] == frozenset({FLOOR})
 
 
 def _l_room(rng):

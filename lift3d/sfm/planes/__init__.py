@@ -48,18 +48,19 @@ Two walls of a box room, 40 points each; the ray from the middle looking along +
 (2.0, [1])
 """
 
-from lift3d.sfm.planes.fit import fit_planes, point_classes
+from lift3d.sfm.planes.fit import FitSettings, fit_planes, point_classes
 from lift3d.sfm.planes.label_lines import (FloorLine, boundary_floor_hits, ceiling_height, ceiling_points,
                                            floor_boundary_points, floor_line, label_boundary)
 from lift3d.sfm.planes.model import StuffPlanes, contradicted, ray_plane_distance
 from lift3d.sfm.planes.pixel_targets import enclosed_segments, label_support
-from lift3d.sfm.planes.room_rules import (WallReach, add_walls, corner_cutters, correct_walls, floor_line_walls,
-                                          floor_plane, height_above, most_walls_hold, settled_offset, square_walls,
-                                          stretch_ids, wall_classes, wall_directions, wall_reach)
+from lift3d.sfm.planes.room_rules import (NewWalls, WallReach, add_walls, corner_cutters, correct_walls,
+                                          floor_line_walls, floor_plane, height_above, most_walls_hold,
+                                          settled_offset, square_walls, stretch_ids, wall_classes, wall_directions,
+                                          wall_reach)
 
-__all__ = ["StuffPlanes", "ray_plane_distance", "contradicted", "point_classes", "fit_planes", "label_boundary",
-           "boundary_floor_hits", "floor_boundary_points", "FloorLine", "floor_line", "ceiling_height",
-           "ceiling_points", "floor_line_walls", "correct_walls", "add_walls", "wall_directions", "corner_cutters",
-           "square_walls", "settled_offset", "stretch_ids", "WallReach", "wall_reach", "floor_plane", "height_above",
-           "wall_classes", "most_walls_hold", "enclosed_segments",
+__all__ = ["StuffPlanes", "ray_plane_distance", "contradicted", "point_classes", "FitSettings", "fit_planes",
+           "label_boundary", "boundary_floor_hits", "floor_boundary_points", "FloorLine", "floor_line",
+           "ceiling_height", "ceiling_points", "floor_plane", "height_above", "wall_classes", "most_walls_hold",
+           "wall_directions", "corner_cutters", "square_walls", "floor_line_walls", "correct_walls", "NewWalls",
+           "add_walls", "settled_offset", "stretch_ids", "WallReach", "wall_reach", "enclosed_segments",
            "label_support"]

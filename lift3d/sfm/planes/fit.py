@@ -3,6 +3,8 @@ stuff classes' points, constrained to level and upright planes and tested agains
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
 from lift3d.sfm.planes.model import StuffPlanes, _crossings, _extent
@@ -40,11 +42,32 @@ def point_classes(obs_point: np.ndarray, obs_class: np.ndarray, num_points: int,
     return out
 
 
+@dataclass(frozen=True)
+class FitSettings:
+    """How :func:`fit_planes` searches for planes and which classes a plane holds."""
+
+    max_planes: int = 24
+    """Most planes."""
+    iterations: int = 500
+    """RANSAC draws per plane."""
+    min_class_share: float = 0.25
+    """A plane holds every class with at least this share of its inliers."""
+    min_class_cover: float = 0.5
+    """A plane also holds every class of which it has at least this share of the points (and 3): a rug on the
+    floor or a window in a wall has too few points to make a quarter of the plane's inliers, and without this
+    their pixels got no targets (tuning scenes 100-111: rugs 3-12 % covered on six of them, windows 5-9 %)."""
+    candidates: int = 64
+    """With sight lines: RANSAC planes (distinct from each other) scored against them per plane found."""
+    max_crossing_share: float = 0.2
+    """With sight lines: most sight lines crossing a plane, as a share of those ending on it. On indoor tuning
+    scenes real walls had up to 0.12 (sight lines to wrong plane-sweep depths behind them) and false planes from
+    0.23."""
+
+
 def fit_planes(points: np.ndarray, classes: np.ndarray, stuff_ids, threshold: float, min_points: int = 15,
-               max_planes: int = 24, iterations: int = 500, margin: float = 0.0, min_class_share: float = 0.25,
-               up: np.ndarray | None = None, sightlines: tuple[np.ndarray, np.ndarray] | None = None,
-               candidates: int = 64, max_crossing_share: float = 0.2, min_class_cover: float = 0.5,
-               seed: int = 0) -> StuffPlanes:
+               margin: float = 0.0, up: np.ndarray | None = None,
+               sightlines: tuple[np.ndarray, np.ndarray] | None = None, seed: int = 0,
+               settings: FitSettings | None = None) -> StuffPlanes:
     """Sequential RANSAC planes of the stuff classes' points (see the module docstring).
 
     The points of all stuff classes are fitted together and each plane takes the classes of its inliers: fitted
@@ -63,17 +86,8 @@ def fit_planes(points: np.ndarray, classes: np.ndarray, stuff_ids, threshold: fl
         Inlier distance (world units).
     min_points : int
         Fewest inliers of a plane.
-    max_planes : int
-        Most planes.
     margin : float
         Stored in the result: how far beyond its inliers' hull a plane extends.
-    min_class_share : float
-        A plane holds every class with at least this share of its inliers.
-    min_class_cover : float
-        A plane also holds every class of which it has at least this share of the points (and 3): a rug on the
-        floor or a window in a wall has too few points to make a quarter of the plane's inliers, and without
-        this their pixels got no targets (tuning scenes 100-111: rugs 3-12 % covered on six of them, windows
-        5-9 %).
     up : np.ndarray, optional
         The scene's up direction. Given, planes are horizontal or vertical (floors, ceilings, walls, roads,
         façades): a horizontal plane needs one point and a vertical one two, so a few points per wall
@@ -81,19 +95,19 @@ def fit_planes(points: np.ndarray, classes: np.ndarray, stuff_ids, threshold: fl
         direction is first refined to the normal of the largest plane within 25° of it.
     sightlines : (np.ndarray, np.ndarray), optional
         ``[M, 3]`` camera centres and ``[M, 3]`` the points they see (every observation, things too). A
-        plane that sight lines cross inside its extent is contradicted by the views. Of the ``candidates``
-        best RANSAC planes, those crossed by more than ``max_crossing_share`` of the sight lines that end on
-        them are dropped, and the one with most inliers × (1 − that share) wins. Without this, objects'
-        points the labels call floor make horizontal slabs above the floor, which floor pixels' rays meet
-        first. (A share, not a count: points are thinned before fitting, sight lines are not.)
-    candidates : int
-        RANSAC planes (distinct from each other) scored against the sight lines per plane found.
-    max_crossing_share : float
-        Most sight lines crossing a plane, as a share of those ending on it. On indoor tuning scenes real
-        walls had up to 0.12 (sight lines to wrong plane-sweep depths behind them) and false planes from 0.23.
+        plane that sight lines cross inside its extent is contradicted by the views. Of the
+        ``settings.candidates`` best RANSAC planes, those crossed by more than ``settings.max_crossing_share`` of
+        the sight lines that end on them are dropped, and the one with most inliers × (1 − that share) wins.
+        Without this, objects' points the labels call floor make horizontal slabs above the floor, which floor
+        pixels' rays meet first. (A share, not a count: points are thinned before fitting, sight lines are not.)
     seed : int
         RANSAC's random draws (the result is deterministic for a seed).
+    settings : FitSettings, optional
+        How many planes and draws, and which classes a plane holds (default: :class:`FitSettings`'s).
     """
+    s = FitSettings() if settings is None else settings
+    max_planes, iterations, candidates = s.max_planes, s.iterations, s.candidates
+    max_crossing_share, min_class_share, min_class_cover = s.max_crossing_share, s.min_class_share, s.min_class_cover
     rng = np.random.default_rng(seed)
     points = np.asarray(points, np.float64)
     classes = np.asarray(classes, np.int64)

@@ -10,7 +10,8 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from lift3d.sfm.planes.label_lines import FloorLine, _vertical_lines
-from lift3d.sfm.planes.model import StuffPlanes, _beyond_hull, _crossing_points, _crossings, contradicted, ray_plane_distance
+from lift3d.sfm.planes.model import (StuffPlanes, _beyond_hull, _crossing_points, _crossings, contradicted,
+                                     ray_plane_distance)
 
 
 def floor_line_walls(line: FloorLine, directions: np.ndarray, known: "StuffPlanes", threshold: float,
@@ -289,28 +290,47 @@ def stretch_ids(along: np.ndarray, gap: float) -> np.ndarray:
     return run
 
 
+@dataclass(frozen=True)
+class NewWalls:
+    """How :func:`add_walls` draws a floor-line wall's points and tests it."""
+
+    max_crossing_share: float = 0.2
+    """Most sight lines crossing the wall inside its points' hull, as a share of those ending on it."""
+    min_class_share: float = 0.25
+    """The wall holds the classes of at least this share of its points."""
+    gap: float | None = None
+    """A wall is the most populated stretch of its feet without a gap over this (world units; default 5 ×
+    the threshold)."""
+    settle: bool = True
+    """The wall first moves onto the stereo points in front of its stretch (:func:`settled_offset`)."""
+    past_edge: bool = True
+    """A wall's vertical lines go on past the top of a view's image while the view labels them its class."""
+
+
 def add_walls(planes: StuffPlanes, cameras, labels: dict[int, np.ndarray], line: FloorLine, walls, up: np.ndarray,
               max_height: float, threshold: float, sightlines: tuple[np.ndarray, np.ndarray],
-              max_crossing_share: float = 0.2, min_class_share: float = 0.25, gap: float | None = None,
-              settle: bool = True, past_edge: bool = True) -> tuple[StuffPlanes, int]:
+              how: NewWalls | None = None) -> tuple[StuffPlanes, int]:
     """``planes`` with the walls of :func:`floor_line_walls` that the views do not contradict, and how many.
 
     Each wall's points are its observations' feet on it and the vertical lines above them while each view keeps
     labelling the line that class (spaced ``2 × threshold`` up to ``max_height``, as
-    :func:`floor_boundary_points`), of the feet's most populated stretch without a gap over ``gap`` (default
-    ``5 × threshold``) along the wall. A wall is kept when its points spread over an area and sight lines
-    (``sightlines``, and the views to these points) cross it inside their hull no more than
-    ``max_crossing_share`` as often as they end on it — the test of :func:`fit_planes`. It holds the classes
-    of at least ``min_class_share`` of its points. The walls are added as they are: fitted again with every
+    :func:`floor_boundary_points`), of the feet's most populated stretch without a gap over ``how.gap``
+    (default ``5 × threshold``) along the wall. A wall is kept when its points spread over an area and sight
+    lines (``sightlines``, and the views to these points) cross it inside their hull no more than
+    ``how.max_crossing_share`` as often as they end on it — the test of :func:`fit_planes`. It holds the classes
+    of at least ``how.min_class_share`` of its points. The walls are added as they are: fitted again with every
     other point, their points shift RANSAC's draws (an L-shaped tuning room lost two walls that way).
 
-    With ``settle`` (default), a wall first moves onto the stereo points in front of its stretch
+    With ``how.settle`` (default), a wall first moves onto the stereo points in front of its stretch
     (:func:`settled_offset`): the boundaries put a far wall's foot a row off, which across a room is several
     centimetres, and the points seen just behind a wall placed in front of the real one counted as sight lines
     through it (tuning room 5: a wall 6.5 cm inside the room crossed by 0.202 of its sight lines, dropped).
     """
+    how = NewWalls() if how is None else how
+    max_crossing_share, min_class_share, settle, past_edge = how.max_crossing_share, how.min_class_share, \
+        how.settle, how.past_edge
     added = 0
-    gap = 5 * threshold if gap is None else gap
+    gap = 5 * threshold if how.gap is None else how.gap
     for normal, offset, obs in walls:
         sub = line.subset(obs)
         feet = sub.feet(normal, offset)
