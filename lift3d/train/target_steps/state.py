@@ -11,7 +11,7 @@ from __future__ import annotations
 import dataclasses
 from dataclasses import dataclass, field
 from functools import cached_property
-from typing import TYPE_CHECKING, Any
+from typing import Any, Protocol
 
 import numpy as np
 
@@ -21,9 +21,6 @@ from lift3d.model.config import ImageDepthConfig
 from lift3d.sfm.mvs import scene_up
 from lift3d.sfm.planes import StuffPlanes, floor_plane, height_above
 from lift3d.utils.steps import Step
-
-if TYPE_CHECKING:  # the plane fit's module imports this one
-    from lift3d.train.target_steps.plane_rules import FitPlanes
 
 #: The metadata key of a step field that names its ImageDepthConfig field.
 CONFIG_KEY = "image_depth"
@@ -156,6 +153,14 @@ class ViewTargets:
     standing: tuple | None = None
 
 
+class Refit(Protocol):
+    """What fitted the planes, and can fit them again with more points
+    (:class:`~lift3d.train.target_steps.plane_rules.FitPlanes`)."""
+
+    def refit_with(self, state: "TargetState", context: TargetContext, points: tuple[np.ndarray, ...]) -> None:
+        ...
+
+
 @dataclass
 class TargetState:
     """What the steps change: the rows of targets, and the stuff planes with what they were fitted to.
@@ -174,9 +179,8 @@ class TargetState:
         Camera centres and the points they see (every observation and plane-sweep depth).
     min_points : int
         Fewest points of a plane (from the stereo points).
-    fit : FitPlanes or None
-        The step that fitted the planes (:meth:`~lift3d.train.target_steps.plane_rules.FitPlanes.refit_with` fits
-        them again with more points).
+    fit : Refit or None
+        The step that fitted the planes (its ``refit_with`` fits them again with more points).
     views : list of ViewTargets
         The views whose pixels meet the planes.
     floor : (int, np.ndarray, float) or None
@@ -190,7 +194,7 @@ class TargetState:
     classes: np.ndarray | None = None
     sightlines: tuple[np.ndarray, np.ndarray] | None = None
     min_points: int = 0
-    fit: FitPlanes | None = None
+    fit: Refit | None = None
     views: list[ViewTargets] = field(default_factory=list)
     floor: tuple[int, np.ndarray, float] | None = field(default=None, init=False)
     _planes: StuffPlanes | None = field(default=None, init=False, repr=False)
