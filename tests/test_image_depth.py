@@ -109,7 +109,9 @@ def test_target_rays_end_at_the_points_and_carry_their_sigma(room):
     frames = scene.split("train")
     targets = image_depth_targets(scene, frames, ImageDepthConfig(source="sparse"))
     assert len(targets) == 15 and targets.info["points_from"] == "scene (test)"
-    assert targets.info["observations"] == 15 and targets.info["frames_with_targets"] == 3
+    assert targets.info["steps"] == [{"name": "sparse-points", "ran": True, "why": "on",
+                                      "seconds": targets.info["steps"][0]["seconds"], "counts": {"observations": 15}}]
+    assert targets.info["frames_with_targets"] == 3
     norm, _ = infer_normalization(scene)
     rays = RayGenerator(scene.cameras, norm.c2w_normalized(scene.cameras.c2w))
     data = TrainingData(scene, frames, rays, progress=False, targets=targets, target_scale=norm.scale,
@@ -128,6 +130,44 @@ def test_target_rays_end_at_the_points_and_carry_their_sigma(room):
     assert np.all(s >= 0.02 * norm.scale - 1e-6) and np.all(s < 0.02 * norm.scale * 1.3)
     # Pixels, labels and colour of a target ray are those of the pixel it goes through.
     assert batch.rgb.shape[0] == batch.origins.shape[0] == batch.semantic.shape[0]
+
+
+def test_points_the_caller_triangulated_are_used_as_they_are_and_cached(room, tmp_path):
+    # The caller triangulated the training frames (observations index those frames, as triangulate_scene's do):
+    # they give the targets the scene's own points give, and land in the cache as if triangulated here.
+    import dataclasses
+
+    from lift3d.data.stereo import read_sparse_points
+
+    scene = load_scene(room)
+    frames = np.asarray(scene.split("train"))
+    own = scene.sparse_points()
+    position = {int(f): k for k, f in enumerate(frames)}
+    theirs = dataclasses.replace(own, frame_names=[scene.frames[int(i)].name for i in frames],
+                                 obs_frame=np.array([position[int(f)] for f in own.obs_frame], np.int32),
+                                 info={"source": "lift3d triangulate", "warnings": ["few points"]})
+    cfg = ImageDepthConfig(source="sparse")
+    given = image_depth_targets(scene, frames, cfg, cache=tmp_path, sparse=theirs)
+    mine = image_depth_targets(scene, frames, cfg)
+    assert given.info["points_from"] == "given (lift3d triangulate)" and given.info["warnings"][0] == "few points"
+    assert all(np.array_equal(getattr(given, k), getattr(mine, k)) for k in ("frame", "u", "v", "z", "sigma"))
+    assert np.array_equal(theirs.obs_frame, [position[int(f)] for f in own.obs_frame])  # the caller's, untouched
+    cached = read_sparse_points(tmp_path / "sparse" / "points3D.ply", tmp_path / "sparse" / "observations.npz",
+                                frame_names=[f.name for f in scene.frames])
+    assert np.array_equal(cached.obs_frame, own.obs_frame) and len(cached) == len(own)
+
+
+def test_without_premises_the_targets_assume_what_they_did_before_profiles(room):
+    from lift3d.train.image_depth import auto_source, default_premises, resolve_source, shown_premises
+
+    scene = load_scene(room)
+    assert scene.scene_box.type == "bounded"
+    assert default_premises(scene) == {"room", "manhattan", "box"} == shown_premises(scene)
+    assert shown_premises(scene, ["room"]) == {"room"}
+    assert auto_source(scene, []) == resolve_source("auto", scene) == "planes"  # auto: planes iff bounded, still
+    scene.scene_box = None
+    assert default_premises(scene) == {"room", "manhattan"} == shown_premises(scene, ["room", "manhattan", "box"])
+    assert resolve_source("auto", scene, {"room", "manhattan"}) == "sparse" and resolve_source("planes", scene) == "planes"
 
 
 def test_point_share_draws_that_share_of_target_rays_among_the_points(room):
@@ -184,7 +224,8 @@ def test_training_triangulates_at_the_start_caches_and_records_it(tmp_path):
     res = train(tmp_path / "plane", preset="fast", output_dir=tmp_path / "runs", overrides=TINY, progress=False,
                 print_summary=False)
     info = res.summary["image_depth"]
-    assert info["source"] == "planes" and "planes" in info and info["points_from"] == "triangulated"
+    assert info["source"] == "planes" and "fit-planes" in [s["name"] for s in info["steps"]]
+    assert info["points_from"] == "triangulated"
     assert info["points"] > 50 and info["targets"] > 100 and info["median_error_px"] < 1.0
     assert res.summary["inputs"] == "RGB + SfM points"
     assert (res.run.path / "image_depth" / "sparse" / "points3D.ply").is_file()
@@ -238,7 +279,7 @@ def test_planarity_prior_is_zero_on_planes_and_counts_only_triples_inside_one_va
 
 def test_plane_sweep_depths_few_views_confirmed_are_left_out_of_the_plane_fit_when_recorded(tmp_path):
     from lift3d.data.stereo import DenseDepth
-    from lift3d.train.image_depth import _dense_points
+    from lift3d.train.target_steps.plane_rules import dense_points
 
     gt = textured_plane_scene(tmp_path / "s", n=2)
     scene = load_scene(tmp_path / "s")
@@ -247,9 +288,9 @@ def test_plane_sweep_depths_few_views_confirmed_are_left_out_of_the_plane_fit_wh
     support[:, :20] = 1  # the part only one source view confirmed
     labels = {0: np.full(depth.shape, 7, np.int64)}
     recorded = DenseDepth(["f0"], [depth], [np.full_like(depth, 0.01)], support=[support])
-    xyz, cls, cams = _dense_points(scene, recorded, labels, min_support=2)
+    xyz, cls, cams = dense_points(scene, recorded, labels, min_support=2)
     assert len(xyz) == int((support >= 2).sum()) and np.all(cls == 7) and cams.shape == xyz.shape
     assert np.allclose(xyz[:, 2], 0.0, atol=1e-4)  # back on the floor z = 0 the depths came from
-    assert len(_dense_points(scene, recorded, labels, min_support=0)[0]) == depth.size
+    assert len(dense_points(scene, recorded, labels, min_support=0)[0]) == depth.size
     unrecorded = DenseDepth(["f0"], [depth], [np.full_like(depth, 0.01)])
-    assert len(_dense_points(scene, unrecorded, labels, min_support=2)[0]) == depth.size
+    assert len(dense_points(scene, unrecorded, labels, min_support=2)[0]) == depth.size

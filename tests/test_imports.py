@@ -2,7 +2,7 @@
 
 * ``render``, ``eval``, ``export`` and ``viz`` never import ``lift3d.train`` (they load runs through
   ``lift3d.model``); ``lift3d.model`` never imports the packages above it; ``lift3d.field`` imports nothing
-  above it.
+  above it; ``lift3d.sfm`` imports nothing but ``data`` (and ``utils``, ``errors``).
 * A ``lift3d`` import inside a function is allowed only where it keeps ``import lift3d`` (or ``lift3d
   --help``) cheap, and then says so in a comment (on its line or the comment lines just above it).
 """
@@ -24,6 +24,9 @@ FORBIDDEN = {
     "viz": ("train",),
     "model": ("train", "eval", "export", "viz", "cli", "bench", "demo", "label", "convert", "synth"),
     "field": ("model", "render", "train", "eval", "export", "viz", "cli", "bench", "demo"),
+    # geometry from the images builds on data alone: train, export and convert use it
+    "sfm": ("field", "render", "model", "train", "eval", "export", "viz", "cli", "bench", "demo", "label", "convert",
+            "synth"),
 }
 
 

@@ -9,10 +9,11 @@ from lift3d.data.scene import load_scene
 from lift3d.data.stereo import SparsePoints, write_sparse_points
 from lift3d.model.config import ImageDepthConfig
 from lift3d.data.cameras import Cameras
-from lift3d.sfm.planes import (add_walls, ceiling_height, ceiling_points, corner_cutters, correct_walls, fit_planes, floor_boundary_points,
-                               floor_line, floor_line_walls, point_classes)
+from lift3d.sfm.planes import (FitSettings, NewWalls, add_walls, ceiling_height, ceiling_points, corner_cutters,
+                               correct_walls, fit_planes, floor_boundary_points, floor_line, floor_line_walls,
+                               point_classes)
 from lift3d.synth import make_scene
-from lift3d.train.image_depth import image_depth_targets
+from lift3d.train.image_depth import flat_info, image_depth_targets
 
 WALL, FLOOR = 1, 2
 UP = np.array([0.0, 0.0, 1.0])
@@ -226,7 +227,7 @@ def test_a_far_wall_whose_foot_the_views_see_at_their_top_edge_is_added_up_to_th
     walls = [w for w in floor_line_walls(line, np.array([[1.0, 0, 0]]), known, threshold=0.1) if abs(w[0][0]) == 1]
     assert len(walls) == 1 and -walls[0][1] * walls[0][0][0] == pytest.approx(6.0, abs=0.1)
     sight = (np.repeat(cams.centers, len(pts), 0), np.tile(pts, (8, 1)))
-    assert add_walls(known, cams, labels, line, walls, UP, 2.5, 0.1, sight, past_edge=False)[1] == 0
+    assert add_walls(known, cams, labels, line, walls, UP, 2.5, 0.1, sight, NewWalls(past_edge=False))[1] == 0
     planes, added = add_walls(known, cams, labels, line, walls, UP, 2.5, 0.1, sight)
     assert added == 1
     t, k = planes.first_hit(np.array([[0.0, 0.0, 2.2]]), np.array([[1.0, 0.0, 0.0]]))  # above what any view shows
@@ -246,7 +247,7 @@ def test_a_floor_line_wall_settles_onto_the_stereo_points_behind_its_foot():
     seen = np.r_[pts, on_wall]
     sight = (np.repeat(cams.centers, len(seen), 0), np.tile(seen, (8, 1)))
     for settle, x in [(True, 6.0), (False, 5.93)]:
-        planes, added = add_walls(known, cams, labels, line, inside, UP, 2.5, 0.1, sight, settle=settle)
+        planes, added = add_walls(known, cams, labels, line, inside, UP, 2.5, 0.1, sight, NewWalls(settle=settle))
         t, _ = planes.first_hit(np.array([[0.0, 0.0, 1.2]]), np.array([[1.0, 0.0, 0.0]]))
         assert added == 1 and t[0] == pytest.approx(x, abs=0.015)
 
@@ -393,7 +394,7 @@ def test_a_textured_ceiling_that_stereo_matched_in_one_spot_reaches_over_all_its
     # the pixels the labels call ceiling elsewhere met no plane, so they got no depth target.
     from types import SimpleNamespace
 
-    from lift3d.train.image_depth import _extend_level_ceilings
+    from lift3d.train.target_steps import CeilingBoundary, PlaneSettings, TargetContext, TargetState
 
     xyz, cls, floor = _box_room_walls()
     rng = np.random.default_rng(1)
@@ -408,10 +409,12 @@ def test_a_textured_ceiling_that_stereo_matched_in_one_spot_reaches_over_all_its
     eye, far = np.array([[0.2, -0.1, 1.5]]), np.array([-2.5, -1.5, 2.5])  # a corner of the ceiling, 2 m off the patch
     ray = (far - eye) / np.linalg.norm(far - eye)
     assert not planes.holds(planes.first_hit(eye, ray)[1], np.array([CEILING]))[0]
-    cfg = ImageDepthConfig(plane_stride=4)
-    sight = (np.zeros((0, 3)), np.zeros((0, 3)))
-    grown, count = _extend_level_ceilings(SimpleNamespace(cameras=cams), range(4), labels, planes, UP, 0.0,
-                                          [WALL, FLOOR, CEILING, RUG], cfg, 10.0, sight)
+    scene = SimpleNamespace(cameras=cams, stuff_ids=[WALL, FLOOR, CEILING, RUG])
+    context = TargetContext(scene, np.arange(4), np.arange(4), None, labels=labels,
+                            plane=PlaneSettings(threshold=0.01, stride=4))
+    context.diag = 10.0
+    step = CeilingBoundary()
+    grown, count = step.extended(planes, UP, 0.0, TargetState(sightlines=(np.zeros((0, 3)), np.zeros((0, 3)))), context)
     assert count == 1 and len(grown) == len(planes) + 1 and grown.classes[-1] == frozenset({CEILING})
     t, k = grown.first_hit(eye, ray)
     assert grown.holds(k, np.array([CEILING]))[0] and t[0] == pytest.approx(np.linalg.norm(far - eye), abs=1e-6)
@@ -419,8 +422,7 @@ def test_a_textured_ceiling_that_stereo_matched_in_one_spot_reaches_over_all_its
     # it was: a window's sill above the eyes is no ceiling.
     through = (np.tile(eye, (200, 1)), np.c_[rng.uniform([-1.0, -0.8], [1.0, 0.6], (200, 2)), np.full(200, 2.5)])
     crossed = rooms.with_plane(UP, -2.0, patch - [0, 0, 0.5], np.full(60, CEILING), 0.1)
-    assert _extend_level_ceilings(SimpleNamespace(cameras=cams), range(4), labels, crossed, UP, 0.0,
-                                  [WALL, FLOOR, CEILING], cfg, 10.0, through)[1] == 0
+    assert step.extended(crossed, UP, 0.0, TargetState(sightlines=through), context)[1] == 0
 
 
 def test_a_window_no_plane_holds_takes_the_depth_of_the_wall_around_it_and_sky_above_a_wall_does_not():
@@ -507,7 +509,7 @@ def test_a_small_class_lying_on_a_plane_is_held_by_it():
     planes = fit_planes(pts, cls, [FLOOR, RUG], threshold=0.05, min_points=8, up=UP)
     assert len(planes) == 1 and planes.classes[0] == frozenset({FLOOR, RUG})
     assert fit_planes(pts, cls, [FLOOR, RUG], threshold=0.05, min_points=8, up=UP,
-                      min_class_cover=1.01).classes[0] == frozenset({FLOOR})
+                      settings=FitSettings(min_class_cover=1.01)).classes[0] == frozenset({FLOOR})
 
 
 def _l_room(rng):
@@ -595,23 +597,30 @@ def test_a_cut_corner_with_its_own_points_along_it_is_kept():
     assert not corner_cutters(planes, pts, cls, 0.05, UP, np.array([1.0, 0.5, 1.5])).any()
 
 
-def test_a_margin_the_views_see_through_does_not_stop_a_ray():
-    # The L-shaped room without the points of its inner wall x = -1: nothing separates the other inner wall
-    # (y = -1, x from -3 to -1) from the open wing x > -1, and its 1 m margin reached across it. A ray along -y
-    # at x = -0.5 passed y = -1 inside that margin and stopped there instead of at the wall y = -3.
+def _l_room_open_wing():
+    """The L-shaped room without the points of its inner wall x = -1, its planes (threshold 0.05, margin 1 m), and
+    the sight lines: the room's, and views from the top of the room through the gap to the far wall y = -3 (a
+    plane sweep's points on it)."""
     pts, cls, (cam, seen) = _l_room(np.random.default_rng(4))
     inner = (np.abs(pts[:, 0] + 1) < 0.02) & (pts[:, 1] < -1) & (cls == WALL)
     drop = np.isin(seen, pts[inner]).all(axis=1)
     planes = fit_planes(pts[~inner], cls[~inner], [WALL, FLOOR], threshold=0.05, min_points=8, margin=1.0, up=UP,
                         sightlines=(cam[~drop], seen[~drop]))
-    assert not any(abs(n[0]) > 0.99 and abs(d - 1.0) < 0.05 for n, d in zip(planes.normal, planes.offset))
-    o, d = np.array([[-0.5, 2.0, 1.5], [-2.0, 2.0, 1.5]]), np.tile([0.0, -1.0, 0.0], (2, 1))
-    assert planes.first_hit(o, d)[0] == pytest.approx([3.0, 3.0], abs=0.05)
-    # views from the top of the room through the gap to the far wall y = -3 (a plane sweep's points on it)
     xz = np.stack(np.meshgrid(np.linspace(-0.95, -0.05, 19), np.linspace(0.1, 2.9, 29)), -1).reshape(-1, 2)
     far = np.c_[xz[:, 0], np.full(len(xz), -3.0), xz[:, 1]]
     eyes = np.tile([-0.5, 2.5, 1.5], (len(far), 1))
-    seen_through = planes.with_seen_through(np.r_[cam[~drop], eyes], np.r_[seen[~drop], far], threshold=0.05)
+    return planes, (np.r_[cam[~drop], eyes], np.r_[seen[~drop], far])
+
+
+def test_a_margin_the_views_see_through_does_not_stop_a_ray():
+    # The L-shaped room without the points of its inner wall x = -1: nothing separates the other inner wall
+    # (y = -1, x from -3 to -1) from the open wing x > -1, and its 1 m margin reached across it. A ray along -y
+    # at x = -0.5 passed y = -1 inside that margin and stopped there instead of at the wall y = -3.
+    planes, sightlines = _l_room_open_wing()
+    assert not any(abs(n[0]) > 0.99 and abs(d - 1.0) < 0.05 for n, d in zip(planes.normal, planes.offset))
+    o, d = np.array([[-0.5, 2.0, 1.5], [-2.0, 2.0, 1.5]]), np.tile([0.0, -1.0, 0.0], (2, 1))
+    assert planes.first_hit(o, d)[0] == pytest.approx([3.0, 3.0], abs=0.05)
+    seen_through = planes.with_seen_through(*sightlines, threshold=0.05)
     # the ray past the wall's end goes on to the far wall; the one in front of the wall still meets it
     assert seen_through.first_hit(o, d)[0] == pytest.approx([5.0, 3.0], abs=0.05)
     # and the margin still fills the room's corners, where no sight line passes
@@ -696,12 +705,13 @@ def test_plane_targets_give_stuff_pixels_their_depth_and_are_recorded(floor_room
     scene = load_scene(floor_room)
     frames = scene.split("train")
     targets = image_depth_targets(scene, frames, ImageDepthConfig(source="planes", plane_stride=2))
-    info = targets.info["planes"]
+    flat = flat_info(targets.info)
+    info = flat["planes"]
     assert targets.info["source"] == "planes" and info["planes"] >= 2 and info["targets"] > 0
     dense = targets.dense  # plane targets, then the plane sweep's depths on thing-labelled pixels
-    on_things = targets.info["dense_on_things"]
+    on_things = flat["dense_on_things"]
     assert on_things > 0 and dense.sum() == info["targets"] + on_things
-    assert (~dense).sum() == targets.info["observations"]
+    assert (~dense).sum() == flat["observations"]
     plane = np.zeros_like(dense)
     plane[np.flatnonzero(dense)[:info["targets"]]] = True
     err, floor = [], []
@@ -721,14 +731,14 @@ def test_plane_targets_give_stuff_pixels_their_depth_and_are_recorded(floor_room
     line = image_depth_lines(targets.info)[0]
     assert f"{info['planes']} stuff planes giving {info['targets']} targets" in line
     assert f"{on_things} plane-sweep depths on objects" in line
-    one = targets.info["dense_on_things_one_source"]
+    one = flat["dense_on_things_one_source"]
     assert 0 <= one < on_things and (f"({one} confirmed by one source view)" in line) == (one > 0)
     # Sparse and plane sources differ only by the plane targets (and the sweep's depths on things).
     sparse = image_depth_targets(scene, frames, ImageDepthConfig(source="sparse"))
     assert len(sparse) == (~dense).sum()
     planes_only = image_depth_targets(scene, frames, ImageDepthConfig(source="planes", plane_stride=2,
                                                                       plane_dense_things=False))
-    assert "dense_on_things" not in planes_only.info and planes_only.dense.sum() == info["targets"]
+    assert "dense_on_things" not in flat_info(planes_only.info) and planes_only.dense.sum() == info["targets"]
 
 
 def test_a_thing_one_view_labels_wall_gets_no_wall_depth_when_the_other_views_see_it(floor_room, monkeypatch):
@@ -757,7 +767,7 @@ def test_a_thing_one_view_labels_wall_gets_no_wall_depth_when_the_other_views_se
                                                                 plane_label_support=share))
         m = t.dense & (t.frame == wrong)
         gt = scene.gt_labels(wrong).semantic[t.v[m].astype(int), t.u[m].astype(int)]
-        return int(np.isin(gt, things).sum()), int((~np.isin(gt, things)).sum()), t.info
+        return int(np.isin(gt, things).sum()), int((~np.isin(gt, things)).sum()), flat_info(t.info)
 
     thing_off, stuff_off, info_off = on_things(0.0)
     thing_on, stuff_on, info_on = on_things(0.5)
@@ -771,42 +781,68 @@ def test_a_thing_one_view_labels_wall_gets_no_wall_depth_when_the_other_views_se
     assert stuff_on >= 0.8 * stuff_off
 
 
+def _steps(targets) -> dict:
+    """The step records of ``targets.info`` by name."""
+    return {r["name"]: r for r in targets.info["steps"]}
+
+
 def test_the_ceiling_step_runs_with_or_without_the_floor_line(floor_room):
     # The ceiling plane needs walls, not the floor-line points: turning the floor line off must not turn the
     # ceiling step off with it (it used to run only inside the floor-line step).
     scene = load_scene(floor_room)
     frames = scene.split("train")
+
+    def steps(**flags):
+        return _steps(image_depth_targets(scene, frames, ImageDepthConfig(source="planes", plane_stride=2, **flags)))
+
     for floor_line in (True, False):
-        info = image_depth_targets(scene, frames, ImageDepthConfig(source="planes", plane_stride=2,
-                                                                   plane_floor_boundary=floor_line)).info["planes"]
-        assert ("floor_boundary_points" in info) == floor_line
-        assert "ceiling_boundary_points" in info
-    off = image_depth_targets(scene, frames, ImageDepthConfig(source="planes", plane_stride=2,
-                                                              plane_ceiling_boundary=False)).info["planes"]
-    assert "ceiling_boundary_points" not in off
+        ran = steps(plane_floor_boundary=floor_line)
+        assert ran["floor-boundary"]["ran"] == floor_line
+        assert ran["floor-boundary"].get("counts", {}).get("floor_boundary_points", 0) > 0 or not floor_line
+        assert "ceiling_boundary_points" in ran["ceiling-boundary"]["counts"]
+    off = steps(plane_ceiling_boundary=False)
+    assert off["ceiling-boundary"] == {"name": "ceiling-boundary", "ran": False, "why": "off"}
     # the far-wall step is recorded, and its switch turns it off
-    assert "floor_line_walls" in off and "floor_line_observations" in off
-    no_far = image_depth_targets(scene, frames, ImageDepthConfig(source="planes", plane_stride=2,
-                                                                 plane_floor_line_walls=False)).info["planes"]
-    assert "floor_line_walls" not in no_far
+    assert {"floor_line_walls", "floor_line_observations"} <= set(off["floor-line-walls"]["counts"])
+    no_far = steps(plane_floor_line_walls=False)
+    assert not no_far["floor-line-walls"]["ran"]
     # so are the textured-ceiling, enclosed-segment and standing-thing steps, each with its switch
-    assert "ceiling_extended" in no_far and "enclosed" in no_far
-    assert "standing_faces" in no_far and "standing_faces_refuted" in no_far
-    neither = image_depth_targets(scene, frames, ImageDepthConfig(source="planes", plane_stride=2,
-                                                                  plane_ceiling_extend=False,
-                                                                  plane_enclosed=False,
-                                                                  plane_standing=False)).info["planes"]
-    assert "ceiling_extended" not in neither and "enclosed" not in neither and "standing_faces" not in neither
+    assert "ceiling_extended" in no_far["ceiling-boundary"]["counts"]
+    assert "enclosed" in no_far["enclosed-segments"]["counts"]
+    assert {"standing_faces", "standing_faces_refuted"} <= set(no_far["standing-things"]["counts"])
+    neither = steps(plane_ceiling_extend=False, plane_enclosed=False, plane_standing=False)
+    assert "ceiling_extended" not in neither["ceiling-boundary"]["counts"]
+    assert not neither["enclosed-segments"]["ran"] and not neither["standing-things"]["ran"]
     # squaring the walls is recorded (the scene's walls are square already) and has a switch
-    assert "walls_squared" in neither
-    unsquared = image_depth_targets(scene, frames, ImageDepthConfig(source="planes", plane_stride=2,
-                                                                    plane_square_walls=False)).info["planes"]
-    assert "walls_squared" not in unsquared
+    assert "walls_squared" in neither["square-walls"]["counts"]
+    unsquared = steps(plane_square_walls=False)
+    assert not unsquared["square-walls"]["ran"]
     # so is the walls' reach past their margin (a bounded room)
-    assert "wall_reach" in unsquared
-    unreached = image_depth_targets(scene, frames, ImageDepthConfig(source="planes", plane_stride=2,
-                                                                    plane_wall_reach=False)).info["planes"]
-    assert "wall_reach" not in unreached
+    assert "wall_reach" in unsquared["wall-reach"]["counts"]
+    assert not steps(plane_wall_reach=False)["wall-reach"]["ran"]
+
+
+def test_rules_the_scene_does_not_show_the_premises_of_are_skipped_and_say_so(floor_room):
+    # An open scene (no premises): the plane fit and the pixel targets run, the room's rules do not. Its
+    # targets are those of the room with every room rule switched off.
+    scene = load_scene(floor_room)
+    frames = scene.split("train")
+    cfg = ImageDepthConfig(source="planes", plane_stride=2)
+    open_ = image_depth_targets(scene, frames, cfg, premises=[])
+    ran = _steps(open_)
+    assert open_.info["premises"] == []
+    assert ran["fit-planes"]["ran"] and ran["plane-hits"]["ran"] and ran["enclosed-segments"]["ran"]
+    for name, missing in [("floor-boundary", "room"), ("corner-cutters", "manhattan, room"),
+                          ("floor-line-walls", "manhattan, room"), ("square-walls", "manhattan, room"),
+                          ("ceiling-boundary", "room"), ("wall-reach", "box, room"), ("standing-things", "room")]:
+        assert ran[name] == {"name": name, "ran": False, "why": f"premise not shown: {missing}"}
+    switched_off = image_depth_targets(scene, frames, ImageDepthConfig(
+        source="planes", plane_stride=2, plane_floor_boundary=False, plane_corner_cutters=False,
+        plane_floor_line_walls=False, plane_square_walls=False, plane_ceiling_boundary=False, plane_wall_reach=False,
+        plane_standing=False, plane_enclosed_margin=False))
+    assert all(np.array_equal(getattr(open_, k), getattr(switched_off, k)) for k in ("frame", "u", "v", "z", "sigma"))
+    # without premises the source auto resolves as before: planes in a bounded scene
+    assert image_depth_targets(scene, frames, ImageDepthConfig(plane_stride=2), premises=[]).info["source"] == "planes"
 
 
 def test_label_boundary_finds_where_rows_of_one_class_sit_on_another():

@@ -106,17 +106,62 @@ class ImageDepthConfig:
     """Smallest standard deviation of a target (normalised units; about 2 cm in an 8 m room)."""
     plane_threshold: float = 0.01
     """``planes``: RANSAC inlier distance, as a fraction of the scene's diagonal."""
+    plane_boundary_rows: int = 2
+    """``planes``: rows of each class on either side of a label boundary (a wall on the floor, a thing on the
+    floor, a ceiling on a wall) for it to count; a one-pixel speck is no boundary."""
+    plane_height_percentile: float = 99.0
+    """``planes``: how high the stuff points reach above the floor (this percentile of their heights): the top of
+    the vertical lines up from a wall's or a thing's foot."""
+    plane_directions_agree_deg: float = 1.5
+    """``planes``: the room's two wall directions are the vertical planes' mean normal modulo a right angle, taken
+    again over the planes within this many degrees of it (a bay wall at 4° pulled a room's mean 0.35° off, 5 cm
+    across its 8 m wall)."""
     plane_min_points: int = 8
     """``planes``: fewest points (after thinning) that make a plane."""
     plane_min_share: float = 0.005
     """``planes``: a plane also needs this share of the stuff points (after thinning)."""
+    plane_fit_point_share: float = 0.6
+    """``planes``, fit-planes: a triangulated point takes the class most of its observations have when at least
+    this share of them agree (else it has none: a keypoint on an object's edge that the labels split)."""
+    plane_fit_max_planes: int = 24
+    """``planes``, fit-planes: most planes the sequential RANSAC finds."""
+    plane_fit_iterations: int = 500
+    """``planes``, fit-planes: RANSAC draws per plane."""
+    plane_fit_candidates: int = 64
+    """``planes``, fit-planes: the best RANSAC planes (distinct from each other) scored against the sight lines
+    per plane found."""
+    plane_fit_max_crossing_share: float = 0.2
+    """``planes``, fit-planes: a candidate is dropped when more sight lines cross it inside its points' hull than
+    this share of those that end on it (on indoor tuning scenes real walls had up to 0.12, false planes from
+    0.23)."""
+    plane_fit_class_share: float = 0.25
+    """``planes``, fit-planes: a plane holds every class with at least this share of its inliers."""
+    plane_fit_class_cover: float = 0.5
+    """``planes``, fit-planes: a plane also holds every class of which it has at least this share of the points
+    (and 3): a rug on the floor or a window in a wall has too few points for a quarter of the plane's."""
+    plane_fit_seed: int = 0
+    """``planes``, fit-planes: seed of RANSAC's draws (the planes are the same for the same seed)."""
     plane_floor_boundary: bool = True
     """``planes``: also fit walls to the points where the 2D labels put a wall on the floor (the ray through
     that boundary meets the floor plane at the wall's foot; the wall rises vertically from there), which needs no
     texture (:func:`lift3d.sfm.planes.floor_boundary_points`)."""
+    plane_floor_boundary_step: float = 2.0
+    """``planes``, with ``plane_floor_boundary``: spacing of the wall points up each vertical line, in plane
+    thresholds."""
+    plane_floor_boundary_tolerance: float = 1.0
+    """``planes``, with ``plane_floor_boundary``: a wall's foot that one pixel of boundary moves by more than this
+    many plane thresholds (a ray grazing the floor far away) is left out."""
     plane_corner_cutters: bool = True
     """``planes``: drop a wall that cuts across the corner of two other walls and is made of their ends' points
     (a stray cluster between them can make it the largest plane; :func:`lift3d.sfm.planes.corner_cutters`)."""
+    plane_corner_cutters_near: float = 2.0
+    """``planes``, with ``plane_corner_cutters``: a wall's points within this many plane thresholds of another wall
+    are at that wall's end; two walls that meet more than this far behind a wall make it a corner cutter."""
+    plane_corner_cutters_end_share: float = 0.15
+    """``planes``, with ``plane_corner_cutters``: share of a wall's points each of the two other walls must have at
+    its ends."""
+    plane_corner_cutters_ends_share: float = 0.4
+    """``planes``, with ``plane_corner_cutters``: share of a wall's points the two ends must have together."""
     plane_floor_line_walls: bool = True
     """``planes``: walls that no plane has yet, found where the wall-on-floor boundaries of many views agree
     to within ``plane_line_pixels`` rows, in the directions of the walls found and at right angles to them (a
@@ -126,11 +171,50 @@ class ImageDepthConfig:
     """``planes``: move a wall found by stereo to where the views' wall-on-floor boundaries put it when they
     clearly disagree (a plain wall fitted to a few points can sit 10–20 cm inside a long room, or turn a few
     degrees; :func:`lift3d.sfm.planes.correct_walls`). Needs ``plane_floor_line_walls``."""
+    plane_floor_line_min_views: int = 3
+    """``planes``, with ``plane_floor_line_walls``: fewest views whose boundaries support a wall found or moved."""
+    plane_floor_line_view_share: float = 0.05
+    """``planes``, with ``plane_floor_line_walls``: a view supports a wall when its foot lies within
+    ``plane_line_pixels`` rows of the view's boundary in at least this share of the image's columns."""
+    plane_floor_line_max_walls: int = 8
+    """``planes``, with ``plane_floor_line_walls``: most walls found per direction."""
+    plane_floor_line_crossing_share: float = 0.2
+    """``planes``, with ``plane_floor_line_walls``: a wall found is added unless sight lines cross it inside its
+    points' hull more than this share as often as they end on it (the plane fit's test)."""
+    plane_floor_line_class_share: float = 0.25
+    """``planes``, with ``plane_floor_line_walls``: a wall found holds the classes of at least this share of its
+    points."""
+    plane_floor_line_gap: float = 5.0
+    """``planes``, with ``plane_floor_line_walls``: a wall found is the most populated stretch of its feet without a
+    gap over this many plane thresholds (feet of another wall that line up with it across the room are left
+    out)."""
+    plane_floor_line_settle: bool = True
+    """``planes``, with ``plane_floor_line_walls``: a wall found first moves onto the stereo points in front of its
+    stretch (the boundaries put a far wall's foot a row off, which across a room is several centimetres)."""
+    plane_floor_line_past_edge: bool = True
+    """``planes``, with ``plane_floor_line_walls``: a wall found rises past the top of a view's image while the
+    view still labels it wall there (a view looking down at a far wall's foot does not say where the wall
+    ends)."""
+    plane_floor_line_correct_reach: float = 4.0
+    """``planes``, with ``plane_floor_line_correct``: a wall moves at most this many plane thresholds."""
+    plane_floor_line_correct_gain: float = 1.5
+    """``planes``, with ``plane_floor_line_correct``: a wall moves when the boundaries support it there at least
+    this many times as much as where it is."""
+    plane_floor_line_correct_crossing_share: float = 1.0
+    """``planes``, with ``plane_floor_line_correct``: a wall does not move to where more sight lines cross it than
+    this share of those that end on it, and more than cross it where it is (a sofa's base or a window's sill
+    can hold the boundary off a wall's foot along a stretch)."""
     plane_square_walls: bool = True
     """``planes``: walls within a few degrees of the room's wall directions (the walls' mean direction modulo a
     right angle) turn onto them about the middle of their points, when their points still fit
     (:func:`lift3d.sfm.planes.square_walls`): stereo turns a plain wall by 1–4° (tuning rooms 5–24), which at
     the end of a 5 m wall is 5–17 cm."""
+    plane_square_walls_max_turn_deg: float = 5.0
+    """``planes``, with ``plane_square_walls``: walls within this many degrees of one of the room's directions turn
+    onto it."""
+    plane_square_walls_min_kept: float = 0.9
+    """``planes``, with ``plane_square_walls``: a wall turns only while this share of its points near it stay
+    within the plane threshold (a wall really at an angle keeps its points only as it is)."""
     plane_line_pixels: float = 1.0
     """``planes``: how many rows a view's wall-on-floor boundary may be off the wall's foot and still count
     for it (``plane_floor_line_walls``)."""
@@ -141,18 +225,38 @@ class ImageDepthConfig:
     plane_ceiling_extend: bool = True
     """``planes``: a level plane above the cameras that stereo found for a ceiling class reaches over every pixel
     the 2D labels give that class (stereo matches a textured ceiling in a few spots only)."""
+    plane_ceiling_crossing_share: float = 1.0
+    """``planes``, with ``plane_ceiling_boundary``: a level plane over a ceiling class's pixels is not added where
+    more sight lines cross it than this share of those that end on it (a window's sill above the eyes: 30 × as
+    many crossed as ended; real ceilings 0–0.21)."""
+    plane_ceiling_wall_share: float = 0.5
+    """``planes``, with ``plane_ceiling_boundary``: a class that at least this share of the walls hold is a wall's
+    class, not a ceiling's (a few walls can hold the ceiling class from the points along their top edges)."""
     plane_enclosed: bool = True
     """``planes``: the segments of a stuff class no plane holds (a window whose pattern stereo matched wrongly)
     that one plane surrounds in a view (most of their one-pixel ring meets it) take that plane's depth
     (:func:`lift3d.sfm.planes.enclosed_segments`)."""
     plane_enclosed_margin: bool = True
-    """``planes``, with ``plane_enclosed``, bounded scenes: an enclosed segment's pixels take the plane's depth within
-    its margin too, not only over the hull of its points (a window high on a wall whose points stop below it;
-    outdoors, sky above a building's face must not)."""
+    """``planes``, with ``plane_enclosed``, where the scene box is the room (premise ``box``: a bounded scene by
+    default): an enclosed segment's pixels take the plane's depth within its margin too, not only over the hull of
+    its points (a window high on a wall whose points stop below it; outdoors, sky above a building's face must
+    not)."""
+    plane_enclosed_ring_share: float = 0.6
+    """``planes``, with ``plane_enclosed``: share of a segment's one-pixel ring (void left out) that must meet the
+    one plane."""
+    plane_enclosed_min_ring: int = 8
+    """``planes``, with ``plane_enclosed``: fewest pixels of a segment's ring (a smaller segment is noise)."""
+    plane_enclosed_max_targeted: float = 0.5
+    """``planes``, with ``plane_enclosed_held``: a segment of which more than this share of the pixels already
+    have a target is left alone (a floor segment that a wall's plane happens to surround is the floor's)."""
     plane_wall_reach: bool = True
-    """``planes``, bounded scenes: a wall's plane reaches past its points and margin, inside the scene box, to the
-    pixels of its class, until another plane's extent, a sight line through it, or floor a view sees behind its
-    line stops it (a long wall that two views see end-on; :func:`lift3d.sfm.planes.wall_reach`)."""
+    """``planes``, where the scene box is the room (premises ``room`` and ``box``: a bounded scene by default): a
+    wall's plane reaches past its points and margin, inside the scene box, to the pixels of its class, until
+    another plane's extent, a sight line through it, or floor a view sees behind its line stops it (a long wall
+    that two views see end-on; :func:`lift3d.sfm.planes.wall_reach`)."""
+    plane_wall_reach_box_pad: float = 1.0
+    """``planes``, with ``plane_wall_reach``: a wall reaches no farther than the scene box grown by this many plane
+    thresholds."""
     plane_enclosed_held: bool = True
     """``planes``, with ``plane_enclosed``: classes a plane holds are enclosed too, in the segments whose pixels
     mostly met no plane holding their class (a window in a second wall, when the plane holding the window class
@@ -163,6 +267,33 @@ class ImageDepthConfig:
     leave it, where three views' feet line up and the plane sweep's depths on the thing do not refute it (a plain
     cabinet has no texture for stereo; :mod:`lift3d.sfm.standing`). On tuning rooms 5–16, 0.89 of its 4 913
     targets were within 1 % of the diagonal; trained on rooms 6 and 7, point mIoU +0.009 / +0.003 (docs/sfm.md)."""
+    plane_standing_step: float = 0.5
+    """``planes``, with ``plane_standing``: spacing of the points up the vertical line above a thing's foot (how
+    finely its top is found), in plane thresholds."""
+    plane_standing_tolerance: float = 2.0
+    """``planes``, with ``plane_standing``: a foot that one pixel of boundary moves by more than this many plane
+    thresholds is left out."""
+    plane_standing_min_views: int = 3
+    """``planes``, with ``plane_standing``: fewest views whose feet line up to make a face."""
+    plane_standing_carve_share: float = 0.25
+    """``planes``, with ``plane_standing``: a point of the line above a foot is carved when this share of the views
+    that have it in their image (and ``plane_standing_carve_views``) label it a stuff class."""
+    plane_standing_carve_views: int = 2
+    """``planes``, with ``plane_standing``: fewest views that carve a point of the line above a foot."""
+    plane_standing_iterations: int = 300
+    """``planes``, with ``plane_standing``: RANSAC draws per face."""
+    plane_standing_seed: int = 0
+    """``planes``, with ``plane_standing``: seed of those draws."""
+    plane_standing_depth_tolerance: float = 1.0
+    """``planes``, with ``plane_standing``: a plane-sweep depth agrees with a face within this many plane
+    thresholds."""
+    plane_standing_agreement: float = 0.65
+    """``planes``, with ``plane_standing``: share of the plane-sweep depths a face meets that must agree with it (on
+    six tuning rooms, faces whose targets were mostly right agreed with 58–100 % of them, plants, shelves and
+    chairs with 0–53 %)."""
+    plane_standing_min_refuting: int = 5
+    """``planes``, with ``plane_standing``: disagreeing plane-sweep depths a face may always have (a few edge
+    depths of a plain box are off)."""
     plane_voxel: float = 0.01
     """``planes``: points are thinned to one per cell of this size (fraction of the diagonal) and class
     before fitting, so densely matched spots do not outvote sparsely matched walls; 0 keeps every point."""
@@ -172,6 +303,9 @@ class ImageDepthConfig:
     """``planes``: a plane's margin does not reach where sight lines to points beyond the plane pass through it
     (:meth:`lift3d.sfm.planes.StuffPlanes.with_seen_through`): the inner wall of an L-shaped room whose other
     inner wall has no plane no longer reaches into the other wing."""
+    plane_margin_seen_through_cell: float = 2.0
+    """``planes``, with ``plane_margin_seen_through``: size of the cells of a margin that a sight line takes away,
+    in plane thresholds."""
     plane_label_support: float = 0.0
     """``planes``: keep a plane target only when at least this share of the other training views that see its
     point (in their image, not behind another plane, label not void) label it a class of its plane: a thing
@@ -180,6 +314,12 @@ class ImageDepthConfig:
     fell by 30–55 % and the targets off by > 1 % of the diagonal by 6–43 %, for 1–10 % of the good ones; trained
     on four (`fast`), point mIoU rose by +0.003 to +0.036 but the 3D F-score fell by 0.001–0.013, PQ^scene
     moved −0.057 to +0.022 and no further object was found (docs/sfm.md)."""
+    plane_label_support_votes: int = 2
+    """``planes``, with ``plane_label_support``: fewest other views whose labels look at a target before they can
+    refute it."""
+    plane_label_support_tolerance: float = 2.0
+    """``planes``, with ``plane_label_support``: another plane a view meets up to this many plane thresholds nearer
+    than the target does not hide it from that view."""
     plane_dense_things: bool = True
     """``planes``: also use the plane sweep's depths at the pixels the 2D labels call a thing (the planes
     give stuff only; objects otherwise have the triangulated points alone: a wardrobe was rendered painted on
@@ -193,6 +333,9 @@ class ImageDepthConfig:
     plane_stride: int = 4
     """``planes``: a target at every ``plane_stride``-th pixel of each row and column (planes cover most of a
     view; denser targets would crowd out the sparse points on objects when target rays are drawn)."""
+    plane_sigma_floor: float = 0.5
+    """``planes``: a plane or face target's standard deviation is its plane's residual, at least this many plane
+    thresholds."""
 
 
 @dataclass

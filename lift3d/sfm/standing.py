@@ -59,7 +59,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from lift3d.sfm.planes import _plane_basis, boundary_floor_hits, ray_plane_distance, stretch_ids
+from lift3d.sfm.planes.label_lines import boundary_floor_hits
+from lift3d.sfm.planes.model import _plane_basis, ray_plane_distance
+from lift3d.sfm.planes.room_rules import stretch_ids
 
 
 @dataclass

@@ -5,7 +5,7 @@ training frame sees a point should end at the point's depth, give or take its st
 what a depth-supervised NeRF (DS-NeRF, Deng et al., CVPR 2022) trains with. Where the targets come from:
 
 * the scene's own sparse points (``sparse_points`` in ``transforms.json``: ``lift3d triangulate``'s, or
-  COLMAP's ``points3D`` kept by ``lift3d convert``);
+  COLMAP's ``points3D`` kept by ``lift3d convert``), or points the caller triangulated already;
 * otherwise points triangulated here at the start of training (:func:`lift3d.sfm.triangulate_scene` on the
   training frames), cached in the run folder so that a resumed run does not redo them;
 * with ``image_depth.source dense``, also plane-sweep depth maps (the scene's ``mvs_depth_file_path``, or
@@ -14,8 +14,11 @@ what a depth-supervised NeRF (DS-NeRF, Deng et al., CVPR 2022) trains with. Wher
   (:mod:`lift3d.sfm.planes`): at every ``plane_stride``-th pixel the 2D labels give a stuff class, where the
   ray first meets a plane of that class.
 
-Too few points (too little texture, overlap or baseline) is a warning recorded in ``config.yml`` and the
-training summary; training then goes on with what there is, RGB only when there is nothing.
+The targets are made by an ordered list of named steps (:mod:`lift3d.train.target_steps`), each with its
+settings, the scene premises it needs (:mod:`lift3d.model.profiles`) and the counts it records; ``config.yml``
+lists them (``scene.image_depth.steps``). Too few points (too little texture, overlap or baseline) is a warning
+recorded there and in the training summary; training then goes on with what there is, RGB only when there is
+nothing.
 """
 
 from __future__ import annotations
@@ -23,9 +26,9 @@ from __future__ import annotations
 import io
 import json
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Any
+from typing import Any, Iterable
 
 import numpy as np
 
@@ -33,21 +36,18 @@ from lift3d.data.scene import Scene
 from lift3d.data.stereo import DenseDepth, SparsePoints, read_sparse_points, write_sparse_points_files
 from lift3d.errors import InputError
 from lift3d.model.config import ImageDepthConfig
+from lift3d.model.profiles import PROFILES
 from lift3d.utils.atomic import write_bytes_atomic
+from lift3d.utils.steps import run_steps
 
 #: Fewer usable observations than this per training frame (median) is reported as a warning.
 MIN_OBSERVATIONS_PER_FRAME = 10
 #: The cache of a run folder: triangulated points and plane-sweep maps computed at training start.
 CACHE_DIR = "image_depth"
-#: Fewest other views whose labels must look at a plane target before they can refute it.
-MIN_LABEL_VOTES = 2
-#: Share of the stereo depths a face of a standing thing meets that must agree with it
-#: (lift3d.sfm.standing.stereo_agreement): on six images-only tuning rooms, faces whose targets were mostly
-#: within 1 % of the diagonal agreed with 58-100 % of them, plants, shelves and chairs with 0-53 %.
-STANDING_AGREEMENT = 0.65
-#: Disagreeing stereo depths a face may always have (a few edge depths of a plain box are off).
-MIN_REFUTING_DEPTHS = 5
 SOURCES = ("auto", "sparse", "dense", "planes", "none")
+#: The steps that are sources of their own (their counts were top-level entries of ``scene.image_depth``);
+#: every other step belongs to the stuff planes (its counts were under ``planes``).
+SOURCE_STEPS = ("sparse-points", "plane-sweep", "plane-sweep-on-things")
 
 
 @dataclass
@@ -66,9 +66,12 @@ class DepthTargets:
     dense : np.ndarray
         ``bool [T]`` the target comes from a plane-sweep depth map or a stuff plane (else from a sparse point).
     info : dict
-        What config.yml and the summary record: ``source``, ``points``, ``observations``,
-        ``median_error_px``, ``dense_coverage``, ``targets``, ``frames_with_targets``, ``seconds``,
-        ``warnings``.
+        What config.yml and the summary record: ``source``, ``requested``, ``premises``, ``points_from``,
+        ``points``, ``median_error_px``, ``dense_from``, ``targets``, ``frames_with_targets``,
+        ``frames_without_depth``, ``seconds``, ``warnings``, and ``steps``: each step's
+        :meth:`~lift3d.utils.steps.StepRecord.to_json` (what it counted: ``observations``,
+        ``dense_coverage``, the planes' counts...; :func:`flat_info` puts them where they were before the
+        steps).
     """
 
     frame: np.ndarray
@@ -93,19 +96,43 @@ def frames_without_depth(scene: Scene, frames: np.ndarray) -> np.ndarray:
     return np.asarray([int(i) for i in frames if scene.frames[int(i)].depth_path is None], np.int64)
 
 
-def resolve_source(source: str, scene: Scene | None = None) -> str:
-    """``auto`` → the source measured best by default (docs/sfm.md, "Training with it"): ``planes`` for a
-    bounded scene (rooms: measured there), ``sparse`` otherwise (the planes are not measured outdoors yet)."""
+def is_bounded(scene: Scene | None) -> bool:
+    """Whether ``scene`` has a bounded scene box."""
+    return scene is not None and scene.scene_box is not None and scene.scene_box.type == "bounded"
+
+
+def default_premises(scene: Scene | None) -> frozenset[str]:
+    """The premises the depth targets assumed before scenes had profiles, so that leaving them out changes
+    nothing: a scene with a bounded box is a room with square walls that fills its box (``manhattan-room``);
+    elsewhere the planes (which only an explicit ``source planes`` fits there) still assumed a room with square
+    walls, but not the box."""
+    return PROFILES["manhattan-room"] if is_bounded(scene) else frozenset({"room", "manhattan"})
+
+
+def shown_premises(scene: Scene | None, premises: Iterable[str] | None = None) -> frozenset[str]:
+    """``premises`` (default: :func:`default_premises`), without ``box`` where the scene has no bounded box to be
+    the room."""
+    shown = default_premises(scene) if premises is None else frozenset(premises)
+    return shown if is_bounded(scene) else shown - {"box"}
+
+
+def auto_source(scene: Scene | None, premises: Iterable[str] | None = None) -> str:
+    """What ``image_depth.source auto`` is: the source measured best (docs/sfm.md, "Training with it"),
+    ``planes`` in a bounded scene (rooms: measured there), ``sparse`` otherwise (the planes are not measured
+    outdoors yet). ``premises`` does not change it yet: the one place to make ``auto`` follow the profile."""
+    return "planes" if is_bounded(scene) else "sparse"
+
+
+def resolve_source(source: str, scene: Scene | None = None, premises: Iterable[str] | None = None) -> str:
+    """``source``, with ``auto`` resolved by :func:`auto_source`; an unknown source is an :class:`InputError`."""
     if source not in SOURCES:
         raise InputError("--image_depth.source", f"unknown source {source!r} ({', '.join(SOURCES)})")
-    if source != "auto":
-        return source
-    bounded = scene is not None and scene.scene_box is not None and scene.scene_box.type == "bounded"
-    return "planes" if bounded else "sparse"
+    return auto_source(scene, premises) if source == "auto" else source
 
 
 def image_depth_targets(scene: Scene, frames: np.ndarray, cfg: ImageDepthConfig, cache: Path | None = None,
-                        progress: bool = False, sparse: SparsePoints | None = None) -> DepthTargets:
+                        progress: bool = False, premises: Iterable[str] | None = None,
+                        sparse: SparsePoints | None = None) -> DepthTargets:
     """Depth targets for the frames of ``frames`` that have no depth map.
 
     Parameters
@@ -117,63 +144,50 @@ def image_depth_targets(scene: Scene, frames: np.ndarray, cfg: ImageDepthConfig,
     cache : Path, optional
         Folder (the run's ``image_depth/``) where points and maps computed here are kept and read back.
     progress : bool
+    premises : iterable of str, optional
+        The premises the scene shows (its profile's, :mod:`lift3d.model.profiles`): a step that needs one it
+        does not show is skipped, and recorded so. Default: :func:`default_premises` (as before profiles).
     sparse : SparsePoints, optional
-        Points the caller already has from :func:`scene_sparse_points` (the scene space is sized from them
-        before training); written to ``cache`` when they were triangulated.
+        Points the caller has already (:func:`scene_sparse_points`: the scene space is sized from them before
+        training), observations indexing the scene's frames by name: used instead of the scene's, the cached or
+        newly triangulated ones, and written to ``cache``.
 
     Returns
     -------
     DepthTargets
         Possibly empty (source ``none``, every frame has a depth map, nothing could be triangulated).
     """
-    source = resolve_source(cfg.source, scene)
+    shown = shown_premises(scene, premises)
+    source = resolve_source(cfg.source, scene, shown)
     targets_for = frames_without_depth(scene, frames)
-    info: dict[str, Any] = {"source": source, "requested": cfg.source, "warnings": []}
+    info: dict[str, Any] = {"source": source, "requested": cfg.source, "premises": sorted(shown), "warnings": []}
     if source == "none" or len(targets_for) == 0:
         if source != "none":
             info["source"] = "none (every training frame has a depth map)"
         return DepthTargets.empty(info)
     t0 = time.perf_counter()
-    if sparse is None:
-        sparse, origin = scene_sparse_points(scene, frames, cache, progress)
-    else:
-        origin = str(sparse.info.get("origin", "given"))
-        if cache is not None and origin == "triangulated":
-            write_sparse_points_files(cache, sparse)
+    points, origin = scene_sparse_points(scene, frames, cache, progress, sparse)
     info["points_from"] = origin
-    info["points"] = int(len(sparse))
-    info["median_error_px"] = round(sparse.median_error, 3) if len(sparse) else None
-    info["warnings"] += list(sparse.info.get("warnings", [])) if origin == "triangulated" else []
-    parts = [_sparse_rows(scene, sparse, targets_for)]
-    info["observations"] = int(len(parts[0][0]))
-    if source == "dense":
-        dense, dense_origin = _dense_maps(scene, frames, sparse, cache, progress)
-        info["dense_from"] = dense_origin
-        rows = _dense_rows(scene, dense, targets_for)
-        info["dense_coverage"] = round(float(len(rows[0])) / max(1, _pixels(scene, targets_for)), 4)
-        parts.append(rows)
+    info["points"] = int(len(points))
+    info["median_error_px"] = round(points.median_error, 3) if len(points) else None
+    if origin == "triangulated" or sparse is not None:  # the triangulation's own warnings
+        info["warnings"] += list(points.info.get("warnings", []))
+    dense = labels = None
+    if source in ("dense", "planes"):
+        dense, info["dense_from"] = _dense_maps(scene, frames, points, cache, progress)
     if source == "planes":
-        dense, info["dense_from"] = _dense_maps(scene, frames, sparse, cache, progress)
-        labels = {int(i): scene.pseudo_labels(int(i)).semantic for i in frames}  # read once for both steps
-        rows, info["planes"] = _plane_rows(scene, sparse, dense, frames, targets_for, labels, cfg)
-        parts.append(rows)
-        if cfg.plane_dense_things and scene.thing_ids:
-            # the planes hold stuff only: objects get the plane sweep's depths where the labels see one
-            rows = _dense_rows(scene, dense, targets_for)
-            on_thing = np.zeros(len(rows[0]), bool)
-            one_source = np.zeros(len(rows[0]), bool)
-            support = dict(zip(dense.frame_names, dense.support)) if dense.support is not None else {}
-            for i in np.unique(rows[0]):
-                k = np.flatnonzero(rows[0] == i)
-                sem = labels[int(i)]  # targets_for is a subset of the training frames
-                r, c = rows[2][k].astype(np.int64), rows[1][k].astype(np.int64)
-                on_thing[k] = np.isin(sem[r, c], scene.thing_ids)
-                if scene.frames[int(i)].name in support:
-                    one_source[k] = np.asarray(support[scene.frames[int(i)].name])[r, c] == 1
-            parts.append(tuple(a[on_thing] for a in rows))
-            info["dense_on_things"] = int(on_thing.sum())
-            info["dense_on_things_one_source"] = int((on_thing & one_source).sum())
-    frame, u, v, z, sigma, dense_flag = (np.concatenate(a) for a in zip(*parts))
+        labels = {int(i): scene.pseudo_labels(int(i)).semantic for i in frames}  # read once for every step
+    # here, not at module level: keeps `import lift3d.train` cheap (the steps use lift3d.sfm, which loads OpenCV)
+    from lift3d.train.target_steps import PlaneSettings, TargetContext, TargetState, target_steps
+
+    context = TargetContext(scene, np.asarray(frames), targets_for, points, dense, labels, shown,
+                            PlaneSettings.from_config(cfg))
+    state = TargetState()
+    records = run_steps(target_steps(source, cfg), state, context, shown)
+    info["steps"] = [r.to_json() for r in records]
+    empty = DepthTargets.empty()
+    rows = state.rows or [(empty.frame, empty.u, empty.v, empty.z, empty.sigma, empty.dense)]
+    frame, u, v, z, sigma, dense_flag = (np.concatenate(a) for a in zip(*rows))
     finite = np.isfinite(z) & np.isfinite(sigma) & (z > 0) & (sigma > 0)
     targets = DepthTargets(frame[finite], u[finite], v[finite], z[finite], sigma[finite], dense_flag[finite], info)
     counts = np.bincount(np.searchsorted(targets_for, targets.frame), minlength=len(targets_for))
@@ -189,12 +203,41 @@ def image_depth_targets(scene: Scene, frames: np.ndarray, cfg: ImageDepthConfig,
     return targets
 
 
+def flat_info(info: dict[str, Any] | None) -> dict[str, Any] | None:
+    """``scene.image_depth`` in the layout it had before the steps: each source step's counts at the top, the
+    plane steps' under ``planes`` (what the training summary reads). A record of that layout is returned as it
+    is.
+
+    Examples
+    --------
+    >>> flat_info({"source": "planes", "targets": 9, "steps": [
+    ...     {"name": "sparse-points", "ran": True, "why": "on", "seconds": 0.0, "counts": {"observations": 4}},
+    ...     {"name": "square-walls", "ran": True, "why": "on", "seconds": 0.1, "counts": {"walls_squared": 2}},
+    ...     {"name": "wall-reach", "ran": False, "why": "premise not shown: box"}]})
+    {'source': 'planes', 'targets': 9, 'observations': 4, 'planes': {'walls_squared': 2}}
+    """
+    if not info or "steps" not in info:
+        return info
+    out = {k: v for k, v in info.items() if k not in ("steps", "premises")}
+    planes: dict[str, Any] = {}
+    for record in info["steps"]:
+        (out if record["name"] in SOURCE_STEPS else planes).update(record.get("counts", {}))
+    if any(record["name"] not in SOURCE_STEPS for record in info["steps"]):
+        out["planes"] = planes
+    return out
+
+
 # ------------------------------------------------------------------------------------------ sparse points
-def scene_sparse_points(scene: Scene, frames: np.ndarray, cache: Path | None, progress: bool
-                        ) -> tuple[SparsePoints, str]:
-    """The scene's sparse points, else the cached ones, else triangulated now from the images of ``frames``
-    (and cached when ``cache`` is given); and where they came from (also in ``info["origin"]``). Observations
-    index the scene's frames."""
+def scene_sparse_points(scene: Scene, frames: np.ndarray, cache: Path | None, progress: bool,
+                        given: SparsePoints | None = None) -> tuple[SparsePoints, str]:
+    """``given`` (written to the cache), else the scene's sparse points, else the cached ones, else triangulated
+    now from the images of ``frames`` (and cached); observations indexed by scene frame. Returns them and where
+    they came from (also kept in their ``info["origin"]``, so points handed on say where they were made)."""
+    if given is not None:
+        if cache is not None:
+            write_sparse_points_files(cache, given)
+        origin = given.info.get("origin") or f"given ({given.info.get('source', 'by the caller')})"
+        return _by_scene_frame(scene, given), str(origin)
     own = scene.sparse_points()
     if own is not None:
         return _with_origin(own, f"scene ({_scene_points_source(scene)})")
@@ -209,15 +252,23 @@ def scene_sparse_points(scene: Scene, frames: np.ndarray, cache: Path | None, pr
     sparse = triangulate_scene(scene, frames, progress=progress)
     if cache is not None:
         write_sparse_points_files(cache, sparse)
-    # Observations index the triangulated frames; re-index them by scene frame.
-    sparse.obs_frame = np.asarray(frames, np.int64)[sparse.obs_frame].astype(np.int32)
-    sparse.frame_names = names
-    return _with_origin(sparse, "triangulated")
+    sparse.info["origin"] = "triangulated"
+    return _by_scene_frame(scene, sparse), "triangulated"
 
 
 def _with_origin(sparse: SparsePoints, origin: str) -> tuple[SparsePoints, str]:
     sparse.info["origin"] = origin
     return sparse, origin
+
+
+def _by_scene_frame(scene: Scene, sparse: SparsePoints) -> SparsePoints:
+    """``sparse`` with its observations indexing the scene's frames (its ``frame_names`` are the scene's)."""
+    index = {f.name: k for k, f in enumerate(scene.frames)}
+    missing = sorted(set(sparse.frame_names) - set(index))
+    if missing:
+        raise InputError("sparse points", f"observations of frames the scene does not have ({', '.join(missing[:3])})")
+    lut = np.asarray([index[n] for n in sparse.frame_names], np.int64)
+    return replace(sparse, obs_frame=lut[sparse.obs_frame].astype(np.int32), frame_names=[f.name for f in scene.frames])
 
 
 def _scene_points_source(scene: Scene) -> str:
@@ -226,451 +277,6 @@ def _scene_points_source(scene: Scene) -> str:
         return str(meta.get("sparse_points", {}).get("source", "sparse_points"))
     except (OSError, ValueError):
         return "sparse_points"
-
-
-def _sparse_rows(scene: Scene, sparse: SparsePoints, targets_for: np.ndarray):
-    """Observations in the frames of ``targets_for``, inside their image."""
-    keep = np.isin(sparse.obs_frame, targets_for)
-    f = sparse.obs_frame[keep].astype(np.int64)
-    uv = sparse.obs_uv[keep].astype(np.float32)
-    w, h = scene.cameras.width[f], scene.cameras.height[f]
-    inside = (uv[:, 0] >= 0) & (uv[:, 1] >= 0) & (uv[:, 0] < w) & (uv[:, 1] < h)
-    f, uv = f[inside], uv[inside]
-    z, s = sparse.obs_depth[keep][inside], sparse.obs_sigma[keep][inside]
-    # observations.npz puts pixel (c, r)'s centre at (c + .5, r + .5); rays put it at (c, r).
-    return f, uv[:, 0] - 0.5, uv[:, 1] - 0.5, z.astype(np.float32), s.astype(np.float32), np.zeros(len(f), bool)
-
-
-# ------------------------------------------------------------------------------------------ stuff planes
-def scene_diagonal(scene: Scene, sparse: SparsePoints | None = None) -> float:
-    """Length of the scene box's diagonal, else of the box around the cameras and the middle 90 % of the
-    sparse points (world units)."""
-    if scene.scene_box is not None:
-        box = np.asarray(scene.scene_box.aabb, np.float64)
-        return float(np.linalg.norm(box[1] - box[0]))
-    pts = scene.cameras.centers
-    if sparse is not None and len(sparse):
-        lo, hi = np.percentile(sparse.xyz, [5, 95], axis=0)
-        pts = np.r_[pts, lo[None], hi[None]]
-    return float(np.linalg.norm(pts.max(0) - pts.min(0)))
-
-
-def _dense_points(scene: Scene, dense: DenseDepth, labels: dict[int, np.ndarray], min_support: int
-                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """The plane sweep's depths as world points ``[N, 3]``, their pixels' classes ``[N]`` and their cameras'
-    centres ``[N, 3]``, leaving out depths fewer than ``min_support`` source views confirmed (when recorded)."""
-    index = {f.name: k for k, f in enumerate(scene.frames)}
-    supports = dense.support if dense.support is not None else [None] * len(dense)
-    xyz, cls, cams = [np.zeros((0, 3))], [np.zeros(0, np.int64)], [np.zeros((0, 3))]
-    for name, depth, support in zip(dense.frame_names, dense.depth, supports):
-        i = index[name]
-        depth = np.asarray(depth)
-        use = depth > 0
-        if support is not None:
-            use &= np.asarray(support) >= min_support
-        r, c = np.nonzero(use)
-        if not len(r):
-            continue
-        o, d = scene.cameras.rays(i, c, r)
-        xyz.append(o + d * (depth[r, c] / (d @ scene.cameras.c2w_opencv[i][:3, 2]))[:, None])
-        cls.append(labels[i][r, c].astype(np.int64)), cams.append(o)
-    return np.concatenate(xyz), np.concatenate(cls), np.concatenate(cams)
-
-
-def _plane_rows(scene: Scene, sparse: SparsePoints, dense: DenseDepth, frames: np.ndarray, targets_for: np.ndarray,
-                labels: dict[int, np.ndarray], cfg: ImageDepthConfig):
-    """Targets where the rays of stuff-labelled pixels first meet a plane holding their class.
-
-    The planes are fitted to the sparse points (each with its observations' majority class) and the
-    plane-sweep depths (each with its pixel's class): walls get 1–2 sparse points per 1000 pixels but a few
-    percent dense coverage (docs/sfm.md). Points are thinned to one per ``plane_voxel`` cell and class, so a
-    textured corner that the plane sweep covers densely does not outvote a wall; every observation is a
-    sight line for :func:`lift3d.sfm.planes.fit_planes`' free-space test. With ``plane_floor_boundary``, the
-    planes are fitted once more with the wall points the labels' wall-on-floor boundaries give. With
-    ``plane_standing``, the pixels of things get the depth of the upright faces rising from where the labels put
-    them on the floor plane (:mod:`lift3d.sfm.standing`), unless the plane sweep's depths on them disagree.
-    With ``plane_wall_reach`` (bounded scenes), stuff pixels that met no plane of their class get a wall's plane
-    past its margin where it still reaches (:func:`lift3d.sfm.planes.wall_reach`); with ``plane_enclosed``,
-    segments a plane surrounds get its depth (:func:`lift3d.sfm.planes.enclosed_segments`).
-    ``labels``: frame → semantic pseudo-labels of every frame of ``frames``."""
-    # here, not at module level: keeps `import lift3d.train` cheap (lift3d.sfm loads OpenCV)
-    from lift3d.sfm.mvs import scene_up
-    from lift3d.sfm.planes import enclosed_segments, fit_planes, floor_boundary_points, label_support
-    from lift3d.sfm.planes import ceiling_points, corner_cutters, point_classes, square_walls, wall_directions
-    from lift3d.sfm.planes import wall_reach
-    from lift3d.sfm.standing import standing_faces, stereo_agreement
-
-    empty = (np.zeros(0, np.int64),) + (np.zeros(0, np.float32),) * 4 + (np.zeros(0, bool),)
-    stuff = scene.stuff_ids
-    info: dict[str, Any] = {"planes": 0}
-    if not stuff:
-        return empty, info
-    diag = scene_diagonal(scene, sparse)
-    obs_class = np.zeros(len(sparse.obs_frame), np.int64)
-    for i, sem in labels.items():
-        k = np.flatnonzero(sparse.obs_frame == i)
-        h, w = sem.shape
-        col = np.clip(np.floor(sparse.obs_uv[k, 0]).astype(np.int64), 0, w - 1)
-        row = np.clip(np.floor(sparse.obs_uv[k, 1]).astype(np.int64), 0, h - 1)
-        obs_class[k] = sem[row, col]
-    xyz, cls = [sparse.xyz], [point_classes(sparse.obs_point, obs_class, len(sparse))]
-    cams, seen_xyz = [scene.cameras.centers[sparse.obs_frame]], [sparse.xyz[sparse.obs_point]]
-    index = {f.name: k for k, f in enumerate(scene.frames)}
-    p, c, o = _dense_points(scene, dense, labels, cfg.plane_min_support)
-    xyz.append(p), cls.append(c), cams.append(o), seen_xyz.append(p)
-    xyz, cls = np.concatenate(xyz), np.concatenate(cls).astype(np.int64)
-    cams, seen_xyz = np.concatenate(cams), np.concatenate(seen_xyz)
-
-    def thin(xyz, cls):
-        if cfg.plane_voxel > 0 and len(xyz):
-            key = np.c_[np.floor(xyz / (cfg.plane_voxel * diag)).astype(np.int64), cls]
-            first = np.unique(key, axis=0, return_index=True)[1]
-            xyz, cls = xyz[first], cls[first]
-        return xyz, cls
-
-    up = scene_up(scene.cameras)
-
-    def fit(xyz, cls, cams, seen_xyz):  # points already thinned
-        return fit_planes(xyz, cls, stuff, threshold=cfg.plane_threshold * diag, min_points=min_points,
-                          margin=cfg.plane_margin * diag, up=up, sightlines=(cams, seen_xyz))
-
-    thinned, thinned_cls = thin(xyz, cls)
-    n_stuff = int(np.isin(thinned_cls, stuff).sum())
-    # from the stereo points alone: the boundary points below would raise it and lose the walls few views see
-    min_points = max(cfg.plane_min_points, int(cfg.plane_min_share * n_stuff))
-    planes = fit(thinned, thinned_cls, cams, seen_xyz)
-    if cfg.plane_floor_boundary and len(planes):
-        # The floor fixes where the labels' wall-on-floor boundaries are in 3D: wall points without texture
-        # (lift3d.sfm.planes.floor_boundary_points). Fitted again with them.
-        floor = _floor_plane(planes, up)
-        if floor is not None:
-            f, n, d = floor
-            walls = [c for c in stuff if c not in planes.classes[f]]
-            height = _height_above(thinned, n, d)
-            foot, foot_cls, foot_cam = floor_boundary_points(
-                scene.cameras, frames, labels, n, d, planes.classes[f], walls, step=2 * cfg.plane_threshold * diag,
-                max_height=height, tolerance=cfg.plane_threshold * diag)
-            info["floor_boundary_points"] = int(len(foot))
-            if len(foot):
-                # thinning the thinned points again keeps them (one per cell and class already, first in order)
-                thinned, thinned_cls = thin(np.r_[thinned, foot], np.r_[thinned_cls, foot_cls])
-                cams, seen_xyz = np.r_[cams, foot_cam], np.r_[seen_xyz, foot]
-                planes = fit(thinned, thinned_cls, cams, seen_xyz)
-    if cfg.plane_corner_cutters and len(planes):
-        # a plane across a corner, through the ends of its two walls, hides the corner and stops their reach
-        floor = _floor_plane(planes, up)
-        cut = corner_cutters(planes, thinned, thinned_cls, cfg.plane_threshold * diag,
-                             floor[1] if floor is not None else up, scene.cameras.centers[frames].mean(0))
-        info["corner_cutters_dropped"] = int(cut.sum())
-        planes = planes.subset(~cut)
-    if cfg.plane_floor_line_walls and len(planes):
-        # far plain walls: their near feet were too few, but many views' boundaries agree in pixels
-        floor = _floor_plane(planes, up)
-        if floor is not None:
-            height = _height_above(thinned, floor[1], floor[2])
-            planes, found = _floor_line_walls(scene, frames, labels, planes, floor, stuff, cfg, diag, height,
-                                              (cams, seen_xyz))
-            info.update(found)
-    if cfg.plane_square_walls and len(planes):
-        # a plain wall's few stereo points turn its plane by a degree or more: rooms are mostly square
-        floor = _floor_plane(planes, up)
-        directions = wall_directions(planes, floor[1] if floor is not None else up)
-        if directions is not None:
-            planes, info["walls_squared"] = square_walls(planes, directions, thinned, cfg.plane_threshold * diag)
-    if cfg.plane_ceiling_boundary and len(planes):
-        # walls from stereo alone are enough to place a ceiling: this does not need the floor line
-        planes, found = _ceiling_plane(scene, frames, labels, planes, up, stuff, cfg, diag, min_points,
-                                       (cams, seen_xyz))
-        info.update(found)
-    reach = None
-    bounded = scene.scene_box is not None and scene.scene_box.type == "bounded"
-    if cfg.plane_wall_reach and len(planes) and bounded:
-        # a long wall few views see end-on has points on part of its length only (docs/sfm.md)
-        ground = _floor_plane(planes, up)
-        if ground is not None:
-            f, fn, fd = ground
-            floor_xyz, _, floor_cams = ceiling_points(scene.cameras, frames, labels, fn, fd, planes.classes[f],
-                                                      stride=max(1, int(cfg.plane_stride)))
-            threshold = cfg.plane_threshold * diag
-            reach = wall_reach(planes, (cams, seen_xyz), (floor_cams, floor_xyz), fn, threshold,
-                               np.asarray(scene.scene_box.aabb, np.float64) + [[-threshold] * 3, [threshold] * 3])
-    if cfg.plane_margin_seen_through and len(planes):
-        planes = planes.with_seen_through(cams, seen_xyz, cfg.plane_threshold * diag)
-    info.update(planes=len(planes), classes=[sorted(c) for c in planes.classes], stuff_points=n_stuff,
-                points_on_planes=int(planes.inliers.sum()),
-                median_rms=round(float(np.median(planes.rms)), 4) if len(planes) else None)
-    if not len(planes):
-        return empty, info
-    stride = max(1, int(cfg.plane_stride))
-    floor_sigma = 0.5 * cfg.plane_threshold * diag
-    out = []
-    dropped = enclosed = 0
-    held = set().union(*planes.classes)
-    # a window in a second wall: the plane holding the window class is the first wall's
-    enclosable = sorted(set(stuff) if cfg.plane_enclosed_held else set(stuff) - held) if cfg.plane_enclosed else []
-    faces = None
-    floor = _floor_plane(planes, up) if cfg.plane_standing and scene.thing_ids else None
-    if floor is not None:
-        # a plain cabinet: upright faces rising from where the labels put things on the floor
-        f, fn, fd = floor
-        faces = standing_faces(scene.cameras, frames, labels, fn, fd, planes.classes[f], scene.thing_ids, stuff,
-                               threshold=cfg.plane_threshold * diag, step=0.5 * cfg.plane_threshold * diag,
-                               max_height=_height_above(thinned, fn, fd),
-                               tolerance=2 * cfg.plane_threshold * diag)
-        # a plant's leaves spread wider than its pot: where stereo matched a thing, its depths refute a face
-        met, agreeing = stereo_agreement(faces, scene.cameras, [index[n] for n in dense.frame_names], labels,
-                                         dense.depth, tolerance=cfg.plane_threshold * diag)
-        refuted = met - agreeing > np.maximum(MIN_REFUTING_DEPTHS, (1 - STANDING_AGREEMENT) * met)
-        info["standing_faces"] = int(len(faces) - refuted.sum())
-        info["standing_faces_refuted"] = int(refuted.sum())
-        faces = faces.subset(~refuted)
-    standing = reached = 0
-    for i in targets_for:
-        i = int(i)
-        sem = labels[i]  # targets_for is a subset of the training frames
-        h, w = sem.shape
-        r, c = np.mgrid[stride // 2:h:stride, stride // 2:w:stride]
-        r, c = r.ravel(), c.ravel()
-        cls = sem[r, c]
-        keep = np.isin(cls, sorted(held))
-        r, c, cls = r[keep], c[keep], cls[keep]
-        if not len(r):
-            continue
-        o, d = scene.cameras.rays(i, c, r)
-        t, k = planes.first_hit(o, d, classes=cls)
-        ok = k >= 0
-        ok &= planes.holds(k, cls)
-        if reach is not None and not ok.all():
-            # pixels of a wall past its points and margin, where the wall still reaches
-            idx = np.flatnonzero(~ok)
-            rt, rk = reach.first_hit(o[idx], d[idx])
-            on = (rt < t[idx]) & planes.holds(rk, cls[idx])
-            t[idx[on]], k[idx[on]], ok[idx[on]] = rt[on], rk[on], True
-            reached += int(on.sum())
-        if cfg.plane_label_support > 0 and ok.any():
-            # a wardrobe one view labels wall would get the wall's depth: the views that see that spot of the
-            # wall label what stands in front of it
-            idx = np.flatnonzero(ok)
-            support, votes = label_support(scene.cameras, frames, labels, planes, o[idx] + t[idx, None] * d[idx],
-                                           k[idx], i, tolerance=2 * cfg.plane_threshold * diag)
-            refuted = (votes >= MIN_LABEL_VOTES) & (support < cfg.plane_label_support * votes)
-            ok[idx[refuted]] = False
-            dropped += int(refuted.sum())
-        axis = scene.cameras.c2w_opencv[i][:3, 2]
-        r, c, k, t, d = r[ok], c[ok], k[ok], t[ok], d[ok]
-        if enclosable:
-            # a window inside a wall whose plane does not hold it: the wall's depth
-            # (lift3d.sfm.planes.enclosed_segments); pixels that met a plane holding their class keep that depth
-            targeted = np.zeros(sem.shape, bool)
-            targeted[r, c] = True
-            er, ec, et, ek = enclosed_segments(scene.cameras, i, sem, enclosable, planes, stride, targeted=targeted,
-                                               margin=bounded and cfg.plane_enclosed_margin)
-            if len(er):
-                r, c, t, k = np.r_[r, er], np.r_[c, ec], np.r_[t, et], np.r_[k, ek]
-                d = np.r_[d, scene.cameras.rays(i, ec, er)[1]]
-                enclosed += len(er)
-        z = t * (d @ axis)
-        sigma = np.maximum(planes.rms[k], floor_sigma)
-        if faces is not None and len(faces):
-            sr, sc = np.mgrid[stride // 2:h:stride, stride // 2:w:stride]
-            sr, sc = sr.ravel(), sc.ravel()
-            on = np.isin(sem[sr, sc], faces.classes)
-            sr, sc = sr[on], sc[on]
-            so, sd = scene.cameras.rays(i, sc, sr)
-            st, sk = faces.first_hit(so, sd, sem[sr, sc])
-            hit = sk >= 0
-            r, c = np.r_[r, sr[hit]], np.r_[c, sc[hit]]
-            z = np.r_[z, st[hit] * (sd[hit] @ axis)]
-            sigma = np.r_[sigma, np.maximum(faces.rms[sk[hit]], floor_sigma)]
-            standing += int(hit.sum())
-        n = len(r)
-        out.append((np.full(n, i, np.int64), c.astype(np.float32), r.astype(np.float32),
-                    z.astype(np.float32), sigma.astype(np.float32), np.ones(n, bool)))
-    if not out:
-        return empty, info
-    rows = tuple(np.concatenate(a) for a in zip(*out))
-    info["targets"] = int(len(rows[0]))
-    if cfg.plane_label_support > 0:
-        info["refuted_by_other_views"] = dropped
-    if cfg.plane_enclosed:
-        info["enclosed"] = enclosed
-    if floor is not None:
-        info["standing"] = standing
-    if reach is not None:
-        info["wall_reach"] = reached
-    return rows, info
-
-
-def _floor_plane(planes, up: np.ndarray) -> tuple[int, np.ndarray, float] | None:
-    """``(index, normal, offset)`` of the floor, the normal turned up: of the planes within 25° of level, the one
-    with most points (25°: the fit levels its planes to its own refined up, which may differ from the cameras'
-    mean up). None without a level plane."""
-    level = np.abs(planes.normal @ up) > np.cos(np.radians(25))
-    if not level.any():
-        return None
-    f = int(np.flatnonzero(level)[np.argmax(planes.inliers[level])])
-    n, d = planes.normal[f], float(planes.offset[f])
-    return (f, -n, -d) if n @ up < 0 else (f, n, d)
-
-
-def _height_above(points: np.ndarray, normal: np.ndarray, offset: float) -> float:
-    """How high the points reach above the floor ``normal · x + offset = 0`` (99th percentile; 0 without points):
-    the top of the vertical lines that the floor's boundaries with walls and things rise along."""
-    return float(np.percentile(points @ normal + offset, 99)) if len(points) else 0.0
-
-
-def wall_classes(planes, floor: int, up: np.ndarray, stuff) -> list[int]:
-    """The stuff classes that may stand on the floor as a wall: held by a vertical plane (within 10°) and not by
-    the floor plane ``floor`` — unless two or more vertical planes hold it: the floor plane also takes a wall
-    class when enough wall-labelled points lie at the wall's foot (tuning room 16), and that must not cost the
-    walls their floor line. A segmenter that repeats its mistakes paints ceiling or window above floor here
-    and there; the boundary of a class no wall plane holds is no wall's foot (one test room got a vertical
-    "ceiling" plane outside the room from it, which then kept its real ceiling from getting a plane).
-
-    Examples
-    --------
-    >>> from lift3d.sfm.planes import fit_planes
-    >>> floor = np.c_[np.random.default_rng(0).uniform(-2, 2, (200, 2)), np.zeros(200)]
-    >>> wall = np.c_[np.full(60, 2.0), np.random.default_rng(1).uniform([-2, 0], [2, 2.5], (60, 2))]
-    >>> planes = fit_planes(np.r_[floor, wall], np.r_[np.full(200, 2), np.full(60, 1)], [1, 2, 3], threshold=0.05,
-    ...                     min_points=8, up=np.array([0, 0, 1.0]))
-    >>> f = int(np.argmax(np.abs(planes.normal[:, 2])))
-    >>> wall_classes(planes, f, np.array([0, 0, 1.0]), [1, 2, 3])   # the ceiling (3) stands on nothing
-    [1]
-
-    Wall points along both walls' feet (the labels' floor line) make the floor plane hold the wall class too;
-    two walls hold it, so it still stands on the floor:
-
-    >>> foot = np.c_[np.r_[np.full(40, 2.0), np.linspace(-2, 2, 40)], np.r_[np.linspace(-2, 2, 40), np.full(40, 2.0)],
-    ...              np.zeros(80)]
-    >>> wall2 = np.c_[np.random.default_rng(2).uniform([-2, 0], [2, 2.5], (60, 2))[:, 0], np.full(60, 2.0),
-    ...               np.random.default_rng(3).uniform(0, 2.5, 60)]
-    >>> planes = fit_planes(np.r_[floor, wall, wall2, foot], np.r_[np.full(200, 2), np.full(200, 1)], [1, 2, 3],
-    ...                     threshold=0.05, min_points=8, up=np.array([0, 0, 1.0]))
-    >>> f = int(np.argmax(np.abs(planes.normal[:, 2])))
-    >>> sorted(planes.classes[f]), wall_classes(planes, f, np.array([0, 0, 1.0]), [1, 2, 3])
-    ([1, 2], [1])
-    """
-    vertical = planes.vertical(up)
-    walls = [c for c, v in zip(planes.classes, vertical) if v]
-    return [int(c) for c in stuff if sum(c in w for w in walls) >= (2 if c in planes.classes[floor] else 1)]
-
-
-def _floor_line_walls(scene: Scene, frames, labels, planes, floor, stuff, cfg: ImageDepthConfig, diag: float,
-                      max_height: float, sightlines: tuple[np.ndarray, np.ndarray]):
-    """The planes and the walls that the views' wall-on-floor boundaries agree on in pixels and no plane has yet
-    (:func:`lift3d.sfm.planes.floor_line_walls`), in the walls' directions (the mean of the vertical planes'
-    normals modulo a right angle, weighted by their points) and at right angles to them, of the classes
-    :func:`wall_classes` allows, added by :func:`lift3d.sfm.planes.add_walls`."""
-    # here, not at module level: keeps `import lift3d.train` cheap (lift3d.sfm loads OpenCV)
-    from lift3d.sfm.planes import add_walls, correct_walls, floor_line, floor_line_walls, wall_directions
-
-    f, n, d = floor
-    directions = wall_directions(planes, n)
-    if directions is None:
-        return planes, {"floor_line_walls": 0, "floor_line_moved": 0, "floor_line_observations": 0}
-    upright = wall_classes(planes, f, n, stuff)
-    line = floor_line(scene.cameras, frames, labels, n, d, sorted(set(planes.classes[f]) - set(upright)), upright)
-    threshold = cfg.plane_threshold * diag
-    moved = 0
-    if cfg.plane_floor_line_correct:
-        planes, moved = correct_walls(line, directions, planes, threshold, pixel_tolerance=cfg.plane_line_pixels,
-                                      sightlines=sightlines)
-    found = floor_line_walls(line, directions, planes, threshold, pixel_tolerance=cfg.plane_line_pixels)
-    planes, kept = add_walls(planes, scene.cameras, labels, line, found, n, max_height, threshold, sightlines)
-    return planes, {"floor_line_walls": kept, "floor_line_moved": moved, "floor_line_observations": int(len(line))}
-
-
-def _ceiling_plane(scene: Scene, frames, labels, planes, up, stuff, cfg: ImageDepthConfig, diag: float,
-                   min_points: int, sightlines: tuple[np.ndarray, np.ndarray]):
-    """The planes and, when the labels' ceiling-on-wall boundaries and the walls found give the ceiling's height,
-    a horizontal ceiling plane there over the points where the ceiling pixels' rays meet it (docs/sfm.md)."""
-    # here, not at module level: keeps `import lift3d.train` cheap (lift3d.sfm loads OpenCV)
-    from lift3d.sfm.planes import ceiling_height
-
-    floor = _floor_plane(planes, up)
-    if floor is None:
-        return planes, {}
-    _, n, d = floor
-    # Stuff no level plane holds (a ceiling with enough texture has its plane from stereo already) and fewer than
-    # half the walls: the points along a wall's top edge that the labels call ceiling can make one wall's plane
-    # hold the ceiling class (tuning room 7). Each class on its own, so that a window above a wall cannot pull a
-    # ceiling's height.
-    found: dict[str, Any] = {"ceiling_boundary_points": 0, "ceiling_height": None, "ceiling_contradicted": 0}
-    vertical = planes.vertical(n)
-    if cfg.plane_ceiling_extend:
-        planes, found["ceiling_extended"] = _extend_level_ceilings(scene, frames, labels, planes, n, d, stuff, cfg,
-                                                                   diag, sightlines)
-        vertical = planes.vertical(n)
-    for c in [c for c in stuff if not any(c in k for k, v in zip(planes.classes, vertical) if not v)
-              and not _most_walls_hold(planes, vertical, c)]:
-        top, count = ceiling_height(scene.cameras, frames, labels, planes, n, d, [c],
-                                    threshold=cfg.plane_threshold * diag, min_points=min_points)
-        found["ceiling_boundary_points"] += count
-        if top is None:
-            continue
-        grown = _level_plane_over_pixels(scene, frames, labels, planes, n, d - top, c, cfg, diag, sightlines)
-        if grown is None:
-            found["ceiling_contradicted"] += 1
-            continue
-        planes = grown
-        found["ceiling_height"] = round(top, 4)
-    return planes, found
-
-
-def _most_walls_hold(planes, vertical: np.ndarray, class_id: int) -> bool:
-    """Whether half the vertical planes (walls) or more hold ``class_id``: then it is a wall's class, not a
-    ceiling's (a few walls can hold the ceiling class from the points along their top edges)."""
-    return 2 * sum(class_id in k for k, v in zip(planes.classes, vertical) if v) >= vertical.sum()
-
-
-def _level_plane_over_pixels(scene: Scene, frames, labels, planes, normal: np.ndarray, offset: float, class_id: int,
-                             cfg: ImageDepthConfig, diag: float, sightlines: tuple[np.ndarray, np.ndarray]):
-    """The planes and one more, ``normal · x + offset = 0``, over the points where the rays of the pixels the
-    labels call ``class_id`` meet it (:func:`lift3d.sfm.planes.ceiling_points`), holding that class; None when
-    the views see through it there."""
-    # here, not at module level: keeps `import lift3d.train` cheap (lift3d.sfm loads OpenCV)
-    from lift3d.sfm.planes import ceiling_points, contradicted
-
-    xyz, cls, _ = ceiling_points(scene.cameras, frames, labels, normal, offset, [class_id],
-                                 stride=max(1, int(cfg.plane_stride)))
-    # The views see through a level plane at a window's sill, to the wall above it: a test room's window, cut
-    # by the top of every view that shows its sill, made a level plane at 1.67 m in a room 3.2 m high, which
-    # 30 × as many sight lines cross as end on. A real ceiling's share is what stray points above it make:
-    # 0–0.21 on tuning rooms 6–10, so the share allowed is 1 (more crossing it than ending on it). Fewer than
-    # three points, or points along a line, count as contradicted too.
-    if contradicted(sightlines, normal, offset, xyz, cfg.plane_threshold * diag, max_crossing_share=1.0):
-        return None
-    return planes.with_plane(normal, offset, xyz, cls, cfg.plane_threshold * diag)
-
-
-def _extend_level_ceilings(scene: Scene, frames, labels, planes, n: np.ndarray, d: float, stuff, cfg: ImageDepthConfig,
-                           diag: float, sightlines: tuple[np.ndarray, np.ndarray]):
-    """The planes with each level plane above the cameras that stereo found for a ceiling class reaching over
-    every pixel the labels give that class (docs/sfm.md), and how many classes got that.
-
-    A textured ceiling gets its level plane from the stereo points, but only over the few it matched: on a
-    tuning room, 141 points of an 8 × 8 m ceiling with a repeating grid, and 70 % of the ceiling's GT points
-    were out of the export's reach (its pixels got no target, and the field left the ceiling half
-    transparent). The rays of the pixels of that class meet the plane where the ceiling is, as for a plain
-    ceiling (:func:`_ceiling_plane`), and those points become one more plane at the same place holding the
-    class. A class that half the walls hold or more is not a ceiling's; a plane that more sight lines cross
-    than end on over that reach is not added."""
-    vertical = planes.vertical(n)
-    eye = float(np.median(scene.cameras.centers[np.asarray(frames, np.int64)] @ n + d))
-    extended = 0
-    for k in np.flatnonzero(~vertical):
-        if float(planes.origin[k] @ n + d) <= eye:
-            continue
-        for c in sorted(int(c) for c in planes.classes[k] if c in stuff):
-            if _most_walls_hold(planes, vertical, c):
-                continue
-            grown = _level_plane_over_pixels(scene, frames, labels, planes, planes.normal[k], float(planes.offset[k]),
-                                             c, cfg, diag, sightlines)
-            if grown is not None:
-                extended += len(grown) > len(planes)
-                planes = grown
-    return planes, extended
 
 
 # ------------------------------------------------------------------------------------------ dense maps
@@ -701,25 +307,3 @@ def _dense_maps(scene: Scene, frames: np.ndarray, sparse: SparsePoints, cache: P
                             sigma=np.stack(dense.sigma), support=np.stack(dense.support))
         write_bytes_atomic(path, buf.getvalue())
     return dense, "plane sweep"
-
-
-def _dense_rows(scene: Scene, dense: DenseDepth, targets_for: np.ndarray):
-    index = {f.name: k for k, f in enumerate(scene.frames)}
-    wanted = set(int(i) for i in targets_for)
-    out = []
-    for name, d, s in zip(dense.frame_names, dense.depth, dense.sigma):
-        i = index[name]
-        if i not in wanted:
-            continue
-        r, c = np.nonzero(np.asarray(d) > 0)
-        out.append((np.full(len(r), i, np.int64), c.astype(np.float32), r.astype(np.float32),
-                    np.asarray(d)[r, c].astype(np.float32), np.asarray(s)[r, c].astype(np.float32),
-                    np.ones(len(r), bool)))
-    if not out:
-        f = np.zeros(0, np.float32)
-        return np.zeros(0, np.int64), f, f, f, f, np.zeros(0, bool)
-    return tuple(np.concatenate(a) for a in zip(*out))
-
-
-def _pixels(scene: Scene, frames: np.ndarray) -> int:
-    return int(sum(int(scene.cameras.width[i]) * int(scene.cameras.height[i]) for i in frames))

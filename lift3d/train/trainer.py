@@ -40,7 +40,7 @@ from lift3d.render.rays import RayGenerator
 from lift3d.render.renderer import RenderOutputs
 from lift3d.train.data import TrainingData
 from lift3d.train.image_depth import CACHE_DIR as IMAGE_DEPTH_CACHE
-from lift3d.train.image_depth import frames_without_depth, image_depth_targets
+from lift3d.train.image_depth import flat_info, frames_without_depth, image_depth_targets
 from lift3d.train.distributed import DistContext, all_ranks_agree, broadcast_object, init_distributed, shutdown
 from lift3d.train.observed import observed_cells
 from lift3d.train.scene_sizes import instance_capacity, label_resolution
@@ -571,6 +571,7 @@ def _finest(resolution: int) -> str:
 
 def image_depth_lines(info: dict | None) -> list[str]:
     """Summary lines about depth from the images: source, points, median error, coverage, warnings."""
+    info = flat_info(info)  # the steps' counts where the lines below read them
     if not info or str(info.get("source", "")).startswith("none (every"):
         return []  # every training frame has its own depth map
     if not info.get("targets"):
