@@ -14,6 +14,7 @@ from lift3d.bench import tables
 from lift3d.bench.runner import BenchConfig, plan_jobs, run_inputs, write_reports
 from lift3d.bench.stats import mean_std, paired_difference
 from lift3d.cli.main import main
+from lift3d.errors import InputError
 
 
 # ------------------------------------------------------------------------------------------ statistics
@@ -266,6 +267,30 @@ def test_bench_quick_one_row_over_two_seeds(tmp_path, monkeypatch):
     assert 0 <= r["points3d"]["miou"] <= 1 and r["reevaluated"]
     assert not list((out / "cache").glob("*.eval.json"))
     assert "`lift3d bench --reevaluate`" in (docs / "benchmarks.md").read_text()
+
+
+def test_quick_runs_give_a_street_with_depth_maps_a_surface_to_export(tmp_path):
+    """`lift3d bench --quick` stopped at its first outdoor run with depth maps: exported from the fused rendered
+    depth (`--source auto`), a street trained 10 steps is opaque only at its contracted background, beyond the
+    fused cube. The export now says so, and the quick settings train long enough for a surface."""
+    from lift3d.bench.runner import _QUICK_SCENE, _QUICK_TRAIN, _merge
+    from lift3d.bench.worker import run_train
+    from lift3d.export.pointcloud import extract_labelled_points
+    from lift3d.model.run import load_run
+    from lift3d.synth import make_scene
+    from lift3d.train.trainer import train
+
+    scene = tmp_path / "street"
+    make_scene(scene, kind="outdoor", seed=100, noise="moderate", depth="sensor", progress=False, **_QUICK_SCENE)
+    ten = train(scene, preset="fast", output_dir=tmp_path / "ten", progress=False, print_summary=False,
+                overrides=_merge(_QUICK_TRAIN, {"optim": {"steps": 10}, "trainer": {"seed": 100}}))
+    loaded = load_run(ten.run.path, "cpu")
+    with pytest.raises(InputError, match="opaque only beyond the fused cube .* no foreground surface yet"):
+        extract_labelled_points(loaded, loaded.scene(), num_points=1000)
+    res = run_train({"scene": str(scene), "preset": "fast", "seed": 100, "overrides": _QUICK_TRAIN,
+                     "output_dir": str(tmp_path / "quick"), "num_points": 5000, "timing_repeats": 1})
+    p3 = res["metrics"]["points3d"]
+    assert p3["source"] == "export.tsdf" and p3["fscore"] is not None and res["metrics"]["instances_from"] == "export"
 
 
 def test_under_load_measures_step_and_render_alone_and_beside_a_busy_neighbour(tmp_path):

@@ -695,8 +695,8 @@ def _tsdf_points(loaded: LoadedRun, scene: Scene, num_points: int, progress: boo
     fused = fuse_rendered_depth(loaded, scene, progress=progress)
     timings["tsdf"] = time.perf_counter() - t
     if len(fused.faces) == 0:
-        raise InputError(loaded.run.path, "the fused rendered depth has no surface (no training view renders an "
-                                          f"opacity of {fused.info['min_opacity']} anywhere: train longer)")
+        raise InputError(loaded.run.path,
+                         f"the fused rendered depth has no surface: {_why_no_fused_surface(fused.info)}")
     x, pick, bary = sample_surface(fused.vertices, fused.faces, num_points)
     rgb = (bary[:, :, None] * fused.colors[fused.faces[pick]].astype(np.float64)).sum(1)
     t = time.perf_counter()
@@ -704,6 +704,28 @@ def _tsdf_points(loaded: LoadedRun, scene: Scene, num_points: int, progress: boo
     timings["heads"] = time.perf_counter() - t
     return {"x": x, "labels": labels, "rgb": np.clip(rgb + 0.5, 0, 255).astype(np.uint8),
             "thresholds": {"tsdf": fused.info}, "link_radius_normalized": 4.0 * fused.voxel}
+
+
+def _why_no_fused_surface(info: dict[str, Any]) -> str:
+    """Why the training views' fused depth holds no surface, from :func:`fuse_rendered_depth`'s ``info``.
+
+    Examples
+    --------
+    >>> _why_no_fused_surface({"min_opacity": 0.5, "opaque_pixels": 0, "fused_pixels": 0})
+    'no training view renders an opacity of 0.5 anywhere: train longer'
+    >>> _why_no_fused_surface({"min_opacity": 0.5, "opaque_pixels": 900, "fused_pixels": 0, "cube_half_width": 4.0,
+    ...                        "median_opaque_depth": 160.4})  # doctest: +NORMALIZE_WHITESPACE
+    'the training views are opaque only beyond the fused cube (median depth 160 normalised units; the cube reaches
+    4), so the field has no foreground surface yet: train longer, or export with --source surface'
+    """
+    if not info.get("opaque_pixels"):
+        return f"no training view renders an opacity of {info['min_opacity']} anywhere: train longer"
+    if not info.get("fused_pixels"):
+        return (f"the training views are opaque only beyond the fused cube (median depth "
+                f"{info['median_opaque_depth']:.0f} normalised units; the cube reaches {info['cube_half_width']:g}), "
+                "so the field has no foreground surface yet: train longer, or export with --source surface")
+    return (f"{info['fused_pixels']} opaque pixels of the training views lie in the fused cube, but their depths do "
+            "not agree on a surface: train longer, or export with --source surface")
 
 
 def _ray_points(loaded: LoadedRun, scene: Scene, num_points: int, progress: bool,
