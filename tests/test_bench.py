@@ -7,10 +7,11 @@ Tests train only on tuning seeds (>= 100): seeds 0-4 are reserved for the report
 
 import csv
 import json
+from pathlib import Path
 
 import pytest
 
-from lift3d.bench import tables
+from lift3d.bench import tables, worker
 from lift3d.bench.runner import BenchConfig, plan_jobs, run_inputs, write_reports
 from lift3d.bench.stats import mean_std, paired_difference
 from lift3d.cli.main import main
@@ -267,6 +268,74 @@ def test_bench_quick_one_row_over_two_seeds(tmp_path, monkeypatch):
     assert 0 <= r["points3d"]["miou"] <= 1 and r["reevaluated"]
     assert not list((out / "cache").glob("*.eval.json"))
     assert "`lift3d bench --reevaluate`" in (docs / "benchmarks.md").read_text()
+
+
+def _fake_metrics(miou: float) -> dict:
+    """What `lift3d eval` returns, as far as the benchmark's records read it."""
+    return {"psnr": 30.0, "miou": miou, "pq_scene": 0.6, "sq_scene": 0.8, "rq_scene": 0.7,
+            "render_ms_per_2048_rays": 20.0, "pseudo_labels": {"miou": 0.5, "pq_scene": 0.4},
+            "points3d": {"fscore": 0.9, "miou": 0.7, "instance_recall": 1.0, "n_instances": 3, "n_pred_instances": 4}}
+
+
+def test_a_failed_run_is_a_row_marked_failed_and_the_benchmark_goes_on(tmp_path, monkeypatch, capsys):
+    """Training raises on one seed and the timed export raises too: both become rows marked failed with their
+    one-line reason in results.json, results.csv and benchmarks.md; the other seed's row is there, and the exit
+    code says some runs failed. (Nothing is trained: the trainer, the evaluation and the scene are stand-ins.)"""
+    from types import SimpleNamespace
+
+    import lift3d.bench.runner as runner
+
+    monkeypatch.setenv("LIFT3D_NO_PROGRESS", "1")
+    monkeypatch.setattr(runner, "_scene", lambda cfg, kind, seed, *a, **k: tmp_path / f"scene_{kind}_{seed}")
+
+    def train(scene, preset, output_dir, overrides, **kw):
+        if overrides["trainer"]["seed"] == 101:
+            raise RuntimeError("simulated: the optimiser diverged\nat step 12")
+        return SimpleNamespace(run=SimpleNamespace(path=tmp_path / "run100"), steps=40, seconds=1.5,
+                               summary={"depth_supervision": True, "inputs": "RGB + depth"})
+
+    def export(spec):
+        raise InputError(spec["run"], "simulated: no checkpoint")
+
+    monkeypatch.setattr(worker, "train", train)
+    monkeypatch.setattr(worker, "evaluate_run", lambda run, **kw: _fake_metrics(0.8))
+    monkeypatch.setattr(worker, "load_scene", lambda path: SimpleNamespace(categories=[]))
+    monkeypatch.setattr(worker, "run_export", export)
+    out, docs = tmp_path / "bench", tmp_path / "docs"
+    rc = main(["bench", "--quick", "--scenes", "indoor", "--presets", "fast", "--seeds", "100,101", "--noises",
+               "moderate", "--inputs", "rgb+depth", "--only", "presets,export", "--out", str(out), "--docs-dir",
+               str(docs)])
+    assert rc == 1
+    printed = capsys.readouterr().out
+    assert "2 measurements failed" in printed
+    results = json.loads((out / "results.json").read_text())
+    assert [r["seed"] for r in results["runs"]] == [100]
+    trained, exported = results["failed"]
+    assert (trained["seed"], trained["stage"], trained["status"]) == (101, "training", "failed")
+    assert trained["reason"] == "RuntimeError: simulated: the optimiser diverged | at step 12"
+    assert trained["sections"] == ["runs"] and "Traceback" in Path(trained["log"]).read_text()
+    assert exported["stage"] == "export" and exported["reason"].endswith("run100: simulated: no checkpoint")
+    assert not (out / "cache" / "run_indoor_s101_moderate_fast_all.json").exists()  # tried again next time
+    rows = list(csv.DictReader((out / "results.csv").open()))
+    assert [(r["seed"], r["status"]) for r in rows] == [("100", "ok"), ("101", "failed"), ("", "failed")]
+    assert rows[1]["reason"] == "training: RuntimeError: simulated: the optimiser diverged | at step 12"
+    md = (docs / "benchmarks.md").read_text()
+    assert ("| runs | indoor seed 101, moderate labels, with depth maps, `fast` | training | RuntimeError: simulated: "
+            "the optimiser diverged \\| at step 12 |") in md
+    assert "| indoor | moderate | RGB + depth | fast (n=1) |" in md  # the row averages over the seed that finished
+
+
+def test_a_worker_process_that_fails_says_where_and_why(tmp_path):
+    """Out of process (the full benchmark's way), a failing measurement writes no result; the runner reads the
+    worker's stage and one-line reason and keeps its stderr."""
+    from lift3d.bench.runner import _worker
+
+    out = tmp_path / "cache" / "export_indoor_fast_r0.json"
+    with pytest.raises(worker.MeasurementFailed) as info:
+        _worker({"kind": "export", "run": str(tmp_path / "gone")}, out)
+    assert info.value.stage == "export" and str(tmp_path / "gone") in info.value.reason
+    assert "\n" not in info.value.reason and not out.exists()
+    assert Path(info.value.log).read_text().strip() and not worker.failure_path(out).exists()
 
 
 def test_quick_runs_give_a_street_with_depth_maps_a_surface_to_export(tmp_path):

@@ -47,6 +47,7 @@ import platform
 import statistics
 import subprocess
 import sys
+import traceback
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -265,7 +266,9 @@ def _worker(spec: dict, out: Path, in_process: bool = False) -> dict:
     """Run one measurement in a fresh process (cached: an existing result is reused).
 
     ``in_process`` runs it in this process instead (``--quick``: saves importing torch and Open3D for every
-    tiny run; peak memory then is this process's)."""
+    tiny run; peak memory then is this process's). A measurement that fails raises
+    :class:`~lift3d.bench.worker.MeasurementFailed` (nothing is cached: the next benchmark tries it again), its
+    traceback or the worker's stderr kept in OUT.failed.log."""
     if out.is_file():
         cached = json.loads(out.read_text())
         _check_cached_spec(out, cached.get("spec"), spec)
@@ -273,15 +276,32 @@ def _worker(spec: dict, out: Path, in_process: bool = False) -> dict:
     out.parent.mkdir(parents=True, exist_ok=True)
     spec_path = out.with_suffix(".spec.json")
     write_json_atomic(spec_path, spec)
+    log = out.with_name(out.stem + ".failed.log")
+    log.unlink(missing_ok=True)
     if in_process:
-        worker.main([str(spec_path), str(out)])
-        return json.loads(out.read_text())
+        try:
+            result = worker.measure(spec)
+        except worker.MeasurementFailed as exc:
+            write_text_atomic(log, exc.details)
+            exc.log = str(log)
+            raise
+        write_json_atomic(out, result)
+        return result
     env = dict(os.environ, LIFT3D_NO_PROGRESS="1")
     proc = subprocess.run([sys.executable, "-m", "lift3d.bench.worker", str(spec_path), str(out)],
                           capture_output=True, text=True, env=env)
     if proc.returncode != 0 or not out.is_file():
-        tail = "\n".join(proc.stderr.strip().splitlines()[-15:])
-        raise RuntimeError(f"benchmark measurement failed ({spec_path}):\n{tail}")
+        write_text_atomic(log, proc.stderr)
+        said = worker.failure_path(out)
+        if said.is_file():  # the worker says where and why
+            failure = json.loads(said.read_text())
+            said.unlink()
+            raise worker.MeasurementFailed(failure["stage"], failure["reason"], proc.stderr, log=str(log))
+        # it died without saying (killed, out of memory, a crash in native code): its last words
+        last = next((line.strip() for line in reversed(proc.stderr.splitlines()) if line.strip()), "")
+        reason = f"the worker process exited with {proc.returncode}" + (f": {last}" if last else "")
+        raise worker.MeasurementFailed(worker.KIND_STAGES.get(spec["kind"], spec["kind"]), reason, proc.stderr,
+                                       log=str(log))
     return json.loads(out.read_text())
 
 
@@ -554,35 +574,49 @@ def run_benchmark(cfg: BenchConfig) -> dict:
     results: dict[str, Any] = {"machine": machine_info(), "created": _dt.datetime.now().isoformat(timespec="seconds"),
                                "quick": cfg.quick, "seeds": list(cfg.seeds), "runs": [],
                                "curves": {"label_noise": [], "pose_noise": []}, "ablation": [],
-                               "parameterisation": [], "skipped": [], "scaling": [], "export": None, "profile": None,
-                               "under_load": None}
+                               "parameterisation": [], "skipped": [], "failed": [], "scaling": [], "export": None,
+                               "profile": None, "under_load": None}
     jobs = plan_jobs(cfg)
     done: dict[Path, dict | None] = {}
+    failed: dict[Path, dict] = {}  # a failed run's record in results["failed"], by its cache file
     for job in progress_bar(jobs, desc="bench runs", disable=not cfg.progress, unit="run"):
         if job.cache not in done:  # a run several sections share is trained (or skipped) once
             eval_spec = {"num_points": 5_000 if cfg.quick else 200_000, "points3d": job.points3d}
             # What the run trains with (the cache file's name holds the rest: scene, noise, variant).
             identity = {"kind": "train", "preset": job.tags["preset"], "seed": job.scene["seed"],
                         "overrides": job.overrides}
-            if job.cache.is_file():  # finished before: its scene is not needed (nor made again)
-                cached = json.loads(job.cache.read_text())
-                _check_cached_spec(job.cache, cached.get("spec"), identity)
-                done[job.cache] = (_reevaluate(job.cache, eval_spec, in_process=cfg.quick)
-                                   if cfg.reevaluate and job.section != "ablation" else cached)
-            else:
-                try:
-                    scene = _scene(cfg, job.scene["kind"], job.scene["seed"], job.scene["noise"], job.scene["depth"],
-                                   job.scene["pose_noise"])
-                except InputError as exc:
-                    # e.g. a pose noise that would put a written camera inside geometry on this seed: the row then
-                    # has one seed less, and the report says so.
-                    results["skipped"].append({**job.tags, "section": job.section, "reason": str(exc)})
-                    done[job.cache] = None
-                    continue
-                spec = {**identity, "scene": str(scene), "output_dir": str(cfg.out / "runs" / (job.section or "runs")),
-                        "timing_repeats": 1 if cfg.quick else 10, **eval_spec}
-                done[job.cache] = _worker(spec, job.cache, in_process=cfg.quick)
+            done[job.cache] = None
+            try:
+                if job.cache.is_file():  # finished before: its scene is not needed (nor made again)
+                    cached = json.loads(job.cache.read_text())
+                    _check_cached_spec(job.cache, cached.get("spec"), identity)
+                    done[job.cache] = (_reevaluate(job.cache, eval_spec, in_process=cfg.quick)
+                                       if cfg.reevaluate and job.section != "ablation" else cached)
+                else:
+                    try:
+                        scene = _scene(cfg, job.scene["kind"], job.scene["seed"], job.scene["noise"],
+                                       job.scene["depth"], job.scene["pose_noise"])
+                    except InputError as exc:
+                        # e.g. a pose noise that would put a written camera inside geometry on this seed: the row
+                        # then has one seed less, and the report says so.
+                        results["skipped"].append({**job.tags, "section": job.section, "reason": str(exc)})
+                        continue
+                    except Exception as exc:
+                        raise worker.MeasurementFailed("scene synthesis", worker.one_line(exc),
+                                                       traceback.format_exc()) from exc
+                    spec = {**identity, "scene": str(scene),
+                            "output_dir": str(cfg.out / "runs" / (job.section or "runs")),
+                            "timing_repeats": 1 if cfg.quick else 10, **eval_spec}
+                    done[job.cache] = _worker(spec, job.cache, in_process=cfg.quick)
+            except worker.MeasurementFailed as exc:
+                # The run becomes a failed row of the report and the benchmark goes on (its row averages over the
+                # seeds that finished); nothing is cached, so the next benchmark tries it again.
+                failed[job.cache] = failure_record(job.tags, job.section or "export", exc)
+                results["failed"].append(failed[job.cache])
+                continue
         if done[job.cache] is None:
+            if job.cache in failed and (job.section or "export") not in failed[job.cache]["sections"]:
+                failed[job.cache]["sections"].append(job.section or "export")
             continue
         rec = _record(done[job.cache], **job.tags)
         if job.section in ("label_noise", "pose_noise"):
@@ -603,29 +637,76 @@ def run_benchmark(cfg: BenchConfig) -> dict:
         if cfg.reevaluate:
             for path in paths:
                 path.unlink(missing_ok=True)
-        results["export"] = dict(median_export([_worker(spec, path, in_process=cfg.quick) for path in paths]),
-                                 preset=cfg.presets[0])
+        try:
+            results["export"] = dict(median_export([_worker(spec, path, in_process=cfg.quick) for path in paths]),
+                                     preset=cfg.presets[0])
+        except worker.MeasurementFailed as exc:
+            results["failed"].append(failure_record(
+                {"measurement": f"{spec['num_points']:,}-point export of the indoor seed {cfg.seeds[0]} "
+                                f"`{cfg.presets[0]}` run"}, "export", exc))
     if cfg.scaling:
-        results["scaling"] = run_scaling(cfg, cache)
-    if cfg.profile and "indoor" in cfg.scenes:
-        scene = _scene(cfg, "indoor", cfg.seeds[0], "moderate")
-        spec = {"kind": "profile", "scene": str(scene), "preset": cfg.presets[0], "overrides": quick_over,
-                "output_dir": str(cfg.out / "runs" / "profile"), "warmup": 2 if cfg.quick else 10,
-                "steps": 2 if cfg.quick else 10, "repeats": 2 if cfg.quick else 10}
-        results["profile"] = _worker(spec, cache / f"profile_{cfg.presets[0]}.json", in_process=cfg.quick)
-    if cfg.under_load and "indoor" in cfg.scenes:
-        scene = _scene(cfg, "indoor", cfg.seeds[0], "moderate")
-        spec = {"kind": "under_load", "scene": str(scene), "preset": cfg.presets[0], "overrides": quick_over,
-                "output_dir": str(cfg.out / "runs" / "under_load"), "warmup": 1 if cfg.quick else 5,
-                "steps": 1 if cfg.quick else 10, "repeats": 1 if cfg.quick else 10, "rounds": 1 if cfg.quick else 3,
-                "settle_seconds": 0.2 if cfg.quick else 1.0}
-        results["under_load"] = _worker(spec, cache / f"under_load_{cfg.presets[0]}.json")
+        results["scaling"] = run_scaling(cfg, cache, results["failed"])
+    for name, key, title in (("profile", "profile", "profile of a training step and a render"),
+                             ("under_load", "under load", "a training step and a render beside a busy neighbour")):
+        if not getattr(cfg, name) or "indoor" not in cfg.scenes:
+            continue
+        try:
+            with worker.stage("scene synthesis"):
+                scene = _scene(cfg, "indoor", cfg.seeds[0], "moderate")
+            if name == "profile":
+                spec = {"kind": "profile", "scene": str(scene), "preset": cfg.presets[0], "overrides": quick_over,
+                        "output_dir": str(cfg.out / "runs" / "profile"), "warmup": 2 if cfg.quick else 10,
+                        "steps": 2 if cfg.quick else 10, "repeats": 2 if cfg.quick else 10}
+                results["profile"] = _worker(spec, cache / f"profile_{cfg.presets[0]}.json", in_process=cfg.quick)
+            else:  # in a process of its own even with --quick: it measures beside another process
+                spec = {"kind": "under_load", "scene": str(scene), "preset": cfg.presets[0], "overrides": quick_over,
+                        "output_dir": str(cfg.out / "runs" / "under_load"), "warmup": 1 if cfg.quick else 5,
+                        "steps": 1 if cfg.quick else 10, "repeats": 1 if cfg.quick else 10,
+                        "rounds": 1 if cfg.quick else 3, "settle_seconds": 0.2 if cfg.quick else 1.0}
+                results["under_load"] = _worker(spec, cache / f"under_load_{cfg.presets[0]}.json")
+        except worker.MeasurementFailed as exc:
+            results["failed"].append(failure_record({"measurement": f"{title} (`{cfg.presets[0]}`)"}, key, exc))
     write_reports(results, cfg)
     return results
 
 
-def run_scaling(cfg: BenchConfig, cache: Path) -> list[dict]:
-    """Step/render time and memory against resolution, views, V and U (one factor at a time)."""
+def describe_run(tags: dict) -> str:
+    """What a benchmark measurement was, in a few words (the failed and skipped rows of the report).
+
+    Examples
+    --------
+    >>> describe_run({"scene": "outdoor", "seed": 100, "noise": "moderate", "scene_depth": "sensor",
+    ...               "pose_noise": [0.0, 0.0], "preset": "fast", "variant": "all"})
+    'outdoor seed 100, moderate labels, with depth maps, `fast`'
+    >>> describe_run({"scene": "indoor", "seed": 2, "noise": "moderate", "scene_depth": "none", "preset": "fast",
+    ...               "variant": "base+S", "mode": "time", "pose_noise": [0.5, 2.0]})
+    'indoor seed 2, moderate labels, without depth maps, `fast`, base+S, equal time, pose noise 0.5°/2 cm'
+    """
+    if "measurement" in tags:
+        return str(tags["measurement"])
+    parts = [f"{tags['scene']} seed {tags['seed']}", f"{tags['noise']} labels",
+             "with depth maps" if tags.get("scene_depth", "sensor") == "sensor" else "without depth maps",
+             f"`{tags['preset']}`"]
+    if tags.get("variant") not in (None, "all"):
+        parts.append(str(tags["variant"]))
+    if tags.get("mode"):
+        parts.append(f"equal {tags['mode']}")
+    pose = tags.get("pose_noise") or (0.0, 0.0)
+    if any(pose):
+        parts.append(f"pose noise {pose[0]:g}°/{pose[1]:g} cm")
+    return ", ".join(parts)
+
+
+def failure_record(tags: dict, section: str, exc: "worker.MeasurementFailed") -> dict:
+    """A failed measurement's row of ``results["failed"]``: what it was, the section(s) it served, the stage it
+    stopped in, the one-line reason and where the whole error is."""
+    return {**tags, "status": "failed", "section": section, "sections": [section], "run": describe_run(tags),
+            "stage": exc.stage, "reason": exc.reason, "log": exc.log}
+
+
+def run_scaling(cfg: BenchConfig, cache: Path, failed: list[dict] | None = None) -> list[dict]:
+    """Step/render time and memory against resolution, views, V and U (one factor at a time). A point whose
+    measurement fails is left out of the rows and added to ``failed``."""
     if cfg.quick:
         grid = {"resolution": [32, 48], "views": [8, 16], "instance_channels": [8, 32], "classes": [0, 32]}
         base_views, base_res = 8, 32
@@ -646,11 +727,18 @@ def run_scaling(cfg: BenchConfig, cache: Path) -> list[dict]:
             over = _merge(over, {"field": {"num_instance_channels": value}})
         elif factor == "classes" and value:
             over = _merge(over, {"field": {"num_semantic_classes": value}})
-        scene = _scene(cfg, "indoor", cfg.seeds[0], "moderate", n_views=views, width=res, height=res)
-        spec = {"kind": "scaling", "scene": str(scene), "preset": cfg.presets[0], "overrides": over,
-                "output_dir": str(cfg.out / "runs" / "scaling"), "warmup": 1 if cfg.quick else 5,
-                "steps": 2 if cfg.quick else 12, "repeats": 2 if cfg.quick else 7}
-        res_ = _worker(spec, cache / f"scaling_{factor}_{value}.json", in_process=cfg.quick)
+        try:
+            with worker.stage("scene synthesis"):
+                scene = _scene(cfg, "indoor", cfg.seeds[0], "moderate", n_views=views, width=res, height=res)
+            spec = {"kind": "scaling", "scene": str(scene), "preset": cfg.presets[0], "overrides": over,
+                    "output_dir": str(cfg.out / "runs" / "scaling"), "warmup": 1 if cfg.quick else 5,
+                    "steps": 2 if cfg.quick else 12, "repeats": 2 if cfg.quick else 7}
+            res_ = _worker(spec, cache / f"scaling_{factor}_{value}.json", in_process=cfg.quick)
+        except worker.MeasurementFailed as exc:
+            if failed is None:
+                raise
+            failed.append(failure_record({"measurement": f"scaling point {factor} = {value}"}, "scaling", exc))
+            continue
         shown = res_["semantic_classes"] if factor == "classes" else value
         rows.append({"factor": factor, "value": shown, "step_ms": res_["step_ms"], "render_ms": res_["render_ms"],
                      "peak_rss_mb": res_["peak_rss_mb"], "grid_resolution": res_["grid_resolution"],
@@ -699,7 +787,8 @@ CSV_COLUMNS = ["section", "scene", "noise", "scene_depth", "inputs", "pose_noise
                "pose_refinement", "preset", "variant", "mode", "seed", "steps", "train_seconds", "peak_rss_mb",
                "render_ms_per_2048_rays", "psnr", "miou", "pq_scene", "sq_scene", "rq_scene", "miou_strict",
                "pq_scene_strict", "fscore_3d", "miou_3d", "miou_3d_strict", "objects_found_3d", "gt_objects_3d",
-               "instances_exported_3d", "pseudo_miou", "pseudo_pq_scene", "poses_scored_at"]
+               "instances_exported_3d", "pseudo_miou", "pseudo_pq_scene", "poses_scored_at", "status", "measurement",
+               "reason"]
 
 
 def results_csv(results: dict) -> str:
@@ -717,9 +806,20 @@ def results_csv(results: dict) -> str:
                        miou_3d_strict=p3.get("miou_strict"), objects_found_3d=p3.get("instance_recall"),
                        gt_objects_3d=p3.get("n_instances"), instances_exported_3d=p3.get("n_pred_instances"),
                        pseudo_miou=r["pseudo_labels"].get("miou"), pseudo_pq_scene=r["pseudo_labels"].get("pq_scene"),
-                       pose_noise_deg=pose[0], pose_noise_cm=pose[1])
+                       pose_noise_deg=pose[0], pose_noise_cm=pose[1], status="ok")
             w.writerow([row.get(c) for c in CSV_COLUMNS])
+    for f in results.get("failed") or []:  # a failed run: one row per section it served, as a finished one
+        pose = f.get("pose_noise") or [None, None]
+        for section in f.get("sections") or [f["section"]]:
+            row = dict(f, section=section, pose_noise_deg=pose[0], pose_noise_cm=pose[1], measurement=f["run"],
+                       reason=f"{f['stage']}: {f['reason']}")
+            w.writerow([row.get(c) if c in FAILED_CSV_COLUMNS else None for c in CSV_COLUMNS])
     return buf.getvalue()
+
+
+#: The columns a failed run's row fills in results.csv (what it was, and why it has no numbers).
+FAILED_CSV_COLUMNS = ("section", "scene", "noise", "scene_depth", "pose_noise_deg", "pose_noise_cm", "preset",
+                      "variant", "mode", "seed", "status", "measurement", "reason")
 
 
 #: How a user times the render figure on a run of their own, through the public API (docs/api.md).
@@ -747,6 +847,26 @@ RENDER_THROUGH_THE_API = [
     "indoor run its median matched `lift3d eval`'s within the run-to-run spread of either.",
     "",
 ]
+
+
+def failed_markdown(results: dict) -> list[str]:
+    """The runs that failed (their reason in one line) and the runs that could not be made."""
+    lines = []
+    failed = results.get("failed") or []
+    if failed:
+        lines += ["", "## Runs that failed", "",
+                  f"{len(failed)} measurement{'s' if len(failed) != 1 else ''} of this benchmark failed: the rows "
+                  "below average over the seeds that finished (their n says so), and a table whose every run failed "
+                  "is missing. The whole error is in the log file each failure names in `results.json`; `lift3d "
+                  "bench` with the same options tries a failed run again (finished ones come from the cache).",
+                  "", "| section | run | stage | reason |", "|---|---|---|---|"]
+        for f in failed:
+            reason = f["reason"].replace("|", "\\|")
+            lines.append(f"| {', '.join(f.get('sections') or [f['section']])} | {f['run']} | {f['stage']} | {reason} |")
+    if results.get("skipped"):
+        lines += ["", "**Runs that could not be made** (their rows average over fewer seeds):", ""]
+        lines += [f"- {s.get('section') or 'export'}: {describe_run(s)} — {s['reason']}" for s in results["skipped"]]
+    return lines
 
 
 def benchmarks_markdown(results: dict, pictures: dict[str, str]) -> str:
@@ -778,10 +898,7 @@ def benchmarks_markdown(results: dict, pictures: dict[str, str]) -> str:
         lines += tables.ablation_markdown(results, PAPER_ABLATION)
     if results.get("parameterisation"):
         lines += tables.parameterisation_markdown(results)
-    if results.get("skipped"):
-        lines += ["", "**Runs that could not be made** (their rows average over fewer seeds):", ""]
-        lines += [f"- {s.get('section') or 'export'}: {s['scene']} seed {s['seed']}, {s['noise']}, pose noise "
-                  f"{s['pose_noise'][0]:g}°/{s['pose_noise'][1]:g} cm — {s['reason']}" for s in results["skipped"]]
+    lines += failed_markdown(results)
     if results["scaling"]:
         lines += [
             "",
