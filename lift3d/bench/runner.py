@@ -384,6 +384,10 @@ def _record(res: dict, **tags) -> dict:
     pl = m.get("pseudo_labels") or {}
     rec["pseudo_labels"] = {k: pl.get(k) for k in ("miou", "pq_scene", "sq_scene", "rq_scene", "miou_strict",
                                                    "pq_scene_strict")}
+    # Test-view IoU of each thing class the GT views show (runs cached before the worker named the classes: none).
+    names = res.get("thing_classes") or {}
+    rec["thing_iou"] = {names[cid]: {"iou": c["iou"], "gt_pixels": c["gt_pixels"]}
+                        for cid, c in (m.get("per_class_iou_strict") or {}).items() if cid in names}
     return rec
 
 
@@ -572,7 +576,8 @@ def run_benchmark(cfg: BenchConfig) -> dict:
     cache = cfg.out / "cache"
     quick_over = _QUICK_TRAIN if cfg.quick else {}
     results: dict[str, Any] = {"machine": machine_info(), "created": _dt.datetime.now().isoformat(timespec="seconds"),
-                               "quick": cfg.quick, "seeds": list(cfg.seeds), "runs": [],
+                               "quick": cfg.quick, "seeds": list(cfg.seeds), "config": report_config(cfg),
+                               "runs": [],
                                "curves": {"label_noise": [], "pose_noise": []}, "ablation": [],
                                "parameterisation": [], "skipped": [], "failed": [], "scaling": [], "export": None,
                                "profile": None, "under_load": None}
@@ -824,6 +829,9 @@ FAILED_CSV_COLUMNS = ("section", "scene", "noise", "scene_depth", "pose_noise_de
 
 #: How a user times the render figure on a run of their own, through the public API (docs/api.md).
 RENDER_THROUGH_THE_API = [
+    "",
+    "### Timing the render on a run of your own",
+    "",
     "The render figures time 2048 rays of a test view with rgb, depth, semantic and instance, the median of 10 "
     "after 2 warm-up renders (`lift3d eval` reports the same as `render_ms_per_2048_rays`). Through the public "
     "API, on any trained run:",
@@ -845,8 +853,48 @@ RENDER_THROUGH_THE_API = [
     "",
     "`render_rays` wraps the same `render_chunked` call with the conversion from and to numpy; on a trained "
     "indoor run its median matched `lift3d eval`'s within the run-to-run spread of either.",
-    "",
 ]
+
+#: The top-level sections of the benchmark page in order (docs/benchmarks.md keeps the same; a test checks both).
+PAGE_SECTIONS = ("## Which preset to use", "## How good: accuracy over scenes and seeds",
+                 "## How fast: training, rendering, export", "## The speed/accuracy trade", "## Reproduce")
+
+
+def report_config(cfg: BenchConfig) -> dict:
+    """What a benchmark run selected (results.json ``config``): the page's reproduce commands are written from it."""
+    return {"scenes": list(cfg.scenes), "presets": list(cfg.presets), "seeds": list(cfg.seeds),
+            "noises": list(cfg.noises), "inputs": list(cfg.inputs), "ablation_steps": cfg.ablation_steps,
+            "ablation_budget": cfg.ablation_budget, "ablation_modes": list(cfg.ablation_modes),
+            "ablation_variants": list(cfg.ablation_variants), "quick": cfg.quick}
+
+
+def bench_command(config: dict | None, only: str | None = None) -> str:
+    """The ``lift3d bench`` command that measures what ``config`` selected (:func:`report_config`; None: the
+    defaults), narrowed to the sections ``only`` names.
+
+    Examples
+    --------
+    >>> bench_command(None, "presets")
+    'lift3d bench --only presets'
+    >>> bench_command({"scenes": ["indoor"], "presets": ["fast"], "seeds": [0, 1, 2], "quick": False}, "curves")
+    'lift3d bench --only curves --scenes indoor --presets fast'
+    """
+    config = config or {}
+    defaults = {"scenes": ["indoor", "outdoor"], "presets": ["fast", "balanced"], "seeds": list(REPORT_SEEDS),
+                "noises": ["moderate", "view-correlated"], "inputs": ["rgb", "rgb+depth"], "ablation_steps": 1500,
+                "ablation_budget": 600.0, "ablation_modes": list(ABLATION_MODES), "ablation_variants": list(ABLATION)}
+    if config.get("quick"):
+        defaults["seeds"] = list(tables.QUICK_SEEDS)
+    words = ["lift3d", "bench"] + (["--only", only] if only else []) + (["--quick"] if config.get("quick") else [])
+    ablation = only is None or "ablation" in only.split(",")
+    for key, value in config.items():
+        if key == "quick" or value is None or value == defaults.get(key):
+            continue
+        if key.startswith("ablation_") and not ablation:
+            continue
+        text = ",".join(map(str, value)) if isinstance(value, (list, tuple)) else f"{value:g}"
+        words += ["--" + key.replace("_", "-"), text]
+    return " ".join(words)
 
 
 def failed_markdown(results: dict) -> list[str]:
@@ -870,15 +918,20 @@ def failed_markdown(results: dict) -> list[str]:
 
 
 def benchmarks_markdown(results: dict, pictures: dict[str, str]) -> str:
+    """The benchmark page (docs/benchmarks.md): which preset to use, how good, how fast, the trade, and how to
+    reproduce each table, written from the results (no number in it is typed by hand)."""
     m = results["machine"]
+    config = results.get("config")
     lines = [
         "# Benchmarks",
         "",
-        "Regenerated by `lift3d bench` (do not edit by hand: the numbers and the sentences about them are written "
-        "from the results). Every number below was measured in one benchmark "
-        f"run on **{m['cpu']}**, {m['cpus_available']} CPU cores, torch {m['torch']} with "
+        "How accurate and how fast lift3d's presets are on synthetic rooms and streets with noisy 2D labels, "
+        "measured in one benchmark run on this machine: "
+        f"**{m['cpu']}**, {m['cpus_available']} CPU cores, torch {m['torch']} with "
         f"{m['torch_threads']} threads{', GPU ' + m['cuda'] if m.get('cuda') else ', no GPU'}; "
-        f"{results['created']}{' (--quick: tiny scenes, smoke test only)' if results.get('quick') else ''}.",
+        f"{results['created']}{' (--quick: tiny scenes, smoke test only)' if results.get('quick') else ''}. "
+        f"Regenerated by `{bench_command(config)}` (the tables, pictures and sentences are written from its results; "
+        "do not edit by hand). Timings move with the machine and its load: compare them within one run.",
         "",
         tables.seed_note(results.get("seeds") or sorted({r["seed"] for r in results.get("runs", [])})),
     ]
@@ -888,44 +941,75 @@ def benchmarks_markdown(results: dict, pictures: dict[str, str]) -> str:
                       f"their trained checkpoints on {again[-1][:10]} (`lift3d bench --reevaluate`, after a change to "
                       "the eval or export code); their training time, memory and render timing are from the runs "
                       "themselves."]
+    lines += failed_markdown(results)
+    lines += tables.preset_choice_markdown(results)
     if results["runs"]:
         lines += tables.presets_markdown(results)
-    if "pareto" in pictures:
-        lines += ["", f"![speed/accuracy]({pictures['pareto']})"]
+        lines += tables.per_class_markdown(results)
     if any((results.get("curves") or {}).values()):
         lines += tables.curves_markdown(results, pictures.get("noise_curves"))
     if results["ablation"]:
         lines += tables.ablation_markdown(results, PAPER_ABLATION)
     if results.get("parameterisation"):
         lines += tables.parameterisation_markdown(results)
-    lines += failed_markdown(results)
-    if results["scaling"]:
-        lines += [
-            "",
-            "## Scaling: how cost grows with the work",
-            "",
-            "One factor at a time (indoor scene; step = one training step of the preset's batch; render = 2048 "
-            "rays; peak = the measuring process's peak RSS, including the cached training pixels).",
-            "",
-            "| factor | value | step ms | render ms | peak MB | grid res | pixels |",
-            "|---|---|---|---|---|---|---|",
-        ]
-        for r in results["scaling"]:
-            lines.append(f"| {r['factor']} | {r['value']} | {_f(r['step_ms'], 1)} | {_f(r['render_ms'], 1)} | "
-                         f"{_f(r['peak_rss_mb'], 0)} | {r['grid_resolution']} | {r['pixels']} |")
-        if "scaling" in pictures:
-            lines += ["", f"![scaling]({pictures['scaling']})"]
+    lines += ["", "## How fast: training, rendering, export", "",
+              "Training time (wall time of `lift3d train`), peak memory and the render time of 2048 rays of every "
+              "preset row are in the preset table above; below, the labelled export, how cost grows with the work, "
+              "where a step and a render spend their time, and what a busy neighbour costs."]
     if results.get("export"):
         lines += export_markdown(results["export"])
+    if results["scaling"]:
+        lines += scaling_markdown(results["scaling"], pictures.get("scaling"))
     if results.get("profile"):
         lines += profile_markdown(results["profile"])
     if results.get("under_load"):
         lines += under_load_markdown(results["under_load"])
-    lines += ["", "Reproduce: `lift3d bench --out bench_out` (resumable: finished runs are cached; `--plan` lists "
-              "every run with an estimated time, `--only presets,curves,...` runs some sections, `--seeds` chooses "
-              "the scene seeds, `--quick` is the CI smoke test).", ""]
+    if results["runs"]:
+        lines += tables.preset_trade_markdown(results, pictures.get("pareto"))
+    lines += reproduce_markdown(results)
     lines += RENDER_THROUGH_THE_API
-    return "\n".join(lines)
+    return "\n".join(lines) + "\n"
+
+
+def reproduce_markdown(results: dict) -> list[str]:
+    """How to make each table again: the exact ``lift3d bench`` command per section."""
+    config = results.get("config")
+    made = [("the preset table, per-class IoU and the trade", "presets", bool(results.get("runs"))),
+            ("label and pose noise", "curves", any((results.get("curves") or {}).values())),
+            ("the ablation", "ablation", bool(results.get("ablation"))),
+            ("unbounded vs bounded", "bounded", bool(results.get("parameterisation"))),
+            ("the export", "export", bool(results.get("export"))),
+            ("scaling", "scaling", bool(results.get("scaling"))),
+            ("where the time goes", "profile", bool(results.get("profile"))),
+            ("under load", "under-load", bool(results.get("under_load")))]
+    lines = ["", "## Reproduce", "",
+             f"Everything on this page: `{bench_command(config)} --out bench_out` (resumable: finished runs are "
+             "cached in `bench_out/cache`; `--plan` lists every run with an estimated time and trains nothing; "
+             "`lift3d bench --quick` is the smoke test). Each table alone:", ""]
+    lines += [f"- {what}: `{bench_command(config, only)}`" for what, only, shown in made if shown]
+    lines += ["", "`results.json` and `results.csv` beside the page hold every run's per-seed values; a run that "
+                  "fails is a row marked `failed` there with its reason, and `lift3d bench` then exits with 1."]
+    return lines
+
+
+def scaling_markdown(rows: list[dict], picture: str | None) -> list[str]:
+    """The scaling section: step and render time and memory against one factor at a time."""
+    lines = [
+        "",
+        "### Scaling: how cost grows with the work",
+        "",
+        "One factor at a time (indoor scene; step = one training step of the preset's batch; render = 2048 "
+        "rays; peak = the measuring process's peak RSS, including the cached training pixels).",
+        "",
+        "| factor | value | step ms | render ms | peak MB | grid res | pixels |",
+        "|---|---|---|---|---|---|---|",
+    ]
+    for r in rows:
+        lines.append(f"| {r['factor']} | {r['value']} | {_f(r['step_ms'], 1)} | {_f(r['render_ms'], 1)} | "
+                     f"{_f(r['peak_rss_mb'], 0)} | {r['grid_resolution']} | {r['pixels']} |")
+    if picture:
+        lines += ["", f"![scaling]({picture})"]
+    return lines
 
 
 def profile_markdown(prof: dict) -> list[str]:
@@ -936,7 +1020,7 @@ def profile_markdown(prof: dict) -> list[str]:
                                                                       + b.get("rays_per_image", 0))
     lines = [
         "",
-        "## Where the time goes",
+        "### Where the time goes",
         "",
         f"`torch.profiler` on the indoor scene, preset `{prof['preset']}`, {prof['threads']} "
         f"thread{'s' if prof['threads'] != 1 else ''}: "
@@ -953,7 +1037,7 @@ def profile_markdown(prof: dict) -> list[str]:
         f"11–25 ms at best; the render median above is {_f(prof['render_ms'] / 25.0, 1)}–"
         f"{_f(prof['render_ms'] / 11.0, 1)} × that floor. The paper renders 2048 rays in 26.7 ms on an RTX 3090.",
         "",
-        "How to time the render figure on a run of your own through the public API is at the end of this page.",
+        "How to time the render figure on a run of your own through the public API: section \"Reproduce\".",
     ]
     for key, title in (("train", "training step"), ("render", "render of 2048 rays")):
         block = prof[key]
@@ -977,7 +1061,7 @@ def under_load_markdown(ul: dict) -> list[str]:
     """The "under load" section: a training step and a render alone and beside a busy neighbour."""
     return [
         "",
-        "## Under load: one busy neighbour",
+        "### Under load: one busy neighbour",
         "",
         f"The indoor scene, preset `{ul['preset']}`, {ul['threads']} threads, OpenMP threads waiting with "
         f"`{_waiting(ul)}`: medians of {ul['steps']} training steps and {ul['repeats']} "
@@ -1017,7 +1101,7 @@ def export_markdown(ex: dict) -> list[str]:
              f"{', '.join(_f(t, 1) for t in ex['all_seconds'])} s;" if repeats > 1 else "in a fresh process (")
     return [
         "",
-        "## Export: labelled points",
+        "### Export: labelled points",
         "",
         f"`lift3d export --pointcloud` of the indoor `{ex.get('preset', '–')}` run above, {timed} "
         f"{ex['threads']} thread{'s' if ex['threads'] != 1 else ''}): extraction (isosurface, its refinement "

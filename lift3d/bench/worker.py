@@ -109,6 +109,8 @@ def run_train(spec: dict) -> dict:
         # benchmark derives the inputs from depth_supervision, runner.run_inputs).
         "inputs": result.summary.get("inputs"),
         "pose_refinement": bool(result.summary.get("pose_refinement", False)),
+        # The scene's thing classes by id: the report's per-class table names the classes of per_class_iou_strict.
+        "thing_classes": {str(c.id): c.name for c in load_scene(spec["scene"]).categories if c.isthing},
         "metrics": metrics,
     })
 
