@@ -19,6 +19,7 @@ from lift3d.bench.stats import mean_std, paired_difference
 from lift3d.cli.main import main
 from lift3d.errors import InputError
 
+DOCS = Path(__file__).resolve().parents[1] / "docs"
 
 
 # ------------------------------------------------------------------------------------------ statistics
@@ -179,6 +180,20 @@ def test_the_generated_page_is_the_users_page_and_stays_short(tmp_path):
     # Each table with the command that makes it again.
     for only in ("presets", "curves", "ablation", "bounded", "export", "scaling", "profile", "under-load"):
         assert f"`lift3d bench --only {only}`" in md, only
+
+
+def test_the_checked_in_page_has_the_generated_pages_shape():
+    """docs/benchmarks.md (tables measured by hand-run benchmarks of several days) keeps the generated page's
+    sections, stays under 400 lines, and links only files that are in the repository."""
+    md = (DOCS / "benchmarks.md").read_text()
+    lines = md.splitlines()
+    assert len(lines) <= 400, len(lines)
+    assert [x for x in lines if x.startswith("## ")] == list(PAGE_SECTIONS)
+    prose = re.sub(r"```.*?```", "", md, flags=re.S)
+    for target in re.findall(r"\]\(([^)\s#]+)", prose):
+        assert (DOCS / target).exists(), target
+    for name in re.findall(r"[\w./-]+\.(?:md|py|yaml)\b", prose):
+        assert (DOCS / name).exists() or (DOCS.parent / name).exists() or (DOCS.parent / "lift3d" / name).exists(), name
 
 
 def test_inputs_column_is_what_the_run_records():

@@ -186,9 +186,9 @@ class OrientedBox:
 # ------------------------------------------------------------------------------------------ main entry
 def resolve_point_source(source: str, loaded: LoadedRun, scene: Scene) -> tuple[str, str]:
     """The source ``auto`` stands for, and why: ``tsdf`` for an unbounded scene (a street) whose every training
-    frame has a depth map, where the fused depth scored better in 3D (docs/benchmarks.md, "Export sources":
-    F-score +0.06 on the reporting streets, +0.13 / +0.02 on two tuning streets; the isosurface reached 62–87 %
-    of their GT points); ``surface`` everywhere else (rooms, and streets from images alone, where the fused
+    frame has a depth map, where the fused depth scored better in 3D (docs/notes/2026-11-29-benchmark-history.md,
+    "Export sources": F-score +0.06 on the reporting streets, +0.13 / +0.02 on two tuning streets; the isosurface
+    reached 62–87 % of their GT points); ``surface`` everywhere else (rooms, and streets from images alone, where the fused
     rendered depth is haze). Any other source is returned as given."""
     if source not in SOURCES:
         raise InputError("--source", f"unknown source {source!r} ({', '.join(SOURCES)})")
