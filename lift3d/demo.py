@@ -129,14 +129,11 @@ def _f(x: Any, nd: int = 3) -> str:
     return "  –  " if x is None else f"{x:.{nd}f}"
 
 
-def format_summary(s: dict) -> str:
+def metrics_block(s: dict) -> list[str]:
+    """The printed summary's table of results (README.md shows it, from one run; tests/test_demo.py keeps the two
+    in the same format)."""
     m, p, d = s["metrics"], s["pseudo_labels"], s["points3d"]
-    f = s["files"]
-    lines = [
-        "",
-        "lift3d demo: done in {:.0f} s ({})".format(
-            s["total_seconds"], ", ".join(f"{k} {v:.0f} s" for k, v in s["stages_seconds"].items())),
-        "",
+    return [
         "  test views        lifted   2D pseudo-labels",
         f"  mIoU              {_f(m['miou'])}    {_f(p['miou'])}",
         f"  PQ^scene          {_f(m['pq_scene'])}    {_f(p['pq_scene'])}",
@@ -146,6 +143,17 @@ def format_summary(s: dict) -> str:
         f"{_f(d.get('miou_strict'))}), point PQ {_f(d['pq'])}",
         f"  objects found     {_f(d['instance_recall'], 2)} of {d['n_instances']} GT objects (point IoU > 0.5)",
         f"  render            {_f(m['render_ms_per_2048_rays'], 1)} ms per 2048 rays",
+    ]
+
+
+def format_summary(s: dict) -> str:
+    f = s["files"]
+    lines = [
+        "",
+        "lift3d demo: done in {:.0f} s ({})".format(
+            s["total_seconds"], ", ".join(f"{k} {v:.0f} s" for k, v in s["stages_seconds"].items())),
+        "",
+        *metrics_block(s),
         "",
         "  files",
         f"    scene           {f['scene']}",

@@ -43,8 +43,8 @@ def test_bench_quick_curves_ablation_bounded(tmp_path, monkeypatch):
     for name in ("noise_curves.png", "benchmarks.md"):
         assert (out / name).is_file(), name
     md = (tmp_path / "docs" / "benchmarks.md").read_text()
-    for title in ("## Robustness: label noise and pose noise", "**equal steps**", "**equal time**",
-                  "## Unbounded vs bounded space"):
+    for title in ("### Label noise and pose noise", "**equal steps**", "**equal time**",
+                  "### Unbounded vs bounded space"):
         assert title in md, title
     assert "| base → base+S | equal steps |" in md
     assert json.loads((out / "results.json").read_text())["summary"]["ablation_steps"]

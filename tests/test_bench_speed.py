@@ -22,4 +22,4 @@ def test_bench_quick_scaling_and_profile(tmp_path, monkeypatch):
             "render.field_geometry"} <= {r["name"] for r in prof["train"]["stages"]}
     assert (cfg.out / "scaling.png").is_file()
     md = (tmp_path / "docs" / "benchmarks.md").read_text()
-    assert "## Scaling" in md and "## Where the time goes" in md
+    assert "### Scaling" in md and "### Where the time goes" in md

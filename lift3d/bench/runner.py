@@ -47,6 +47,7 @@ import platform
 import statistics
 import subprocess
 import sys
+import traceback
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -110,13 +111,16 @@ REFERENCE_EXTRA_MINUTES = {"scaling": 25.0, "export": 2.0, "profile": 2.0, "unde
 #: Fresh-process repeats of the timed export (:func:`median_export`).
 EXPORT_REPEATS = 5
 
-# Tiny settings for --quick: every code path, seconds per run.
+# Tiny settings for --quick: every code path, seconds per run. 40 steps, not fewer: a street with depth maps is
+# exported from its fused rendered depth (export --source auto), and after 10 or 20 steps its field is opaque
+# only at the contracted background, beyond the fused cube, so the export has no surface; from 30 steps on it has
+# one (outdoor seeds 100-103, both label noises). A quick step takes a few hundredths of a second.
 _QUICK_TRAIN = {
     "field": {"grid": {"resolution_cap": 32, "min_resolution": 16, "head_hidden_dim": 32},
               "mlp": {"width": 64, "depth": 3}},
     "sampling": {"proposal_resolutions": [24], "proposal_samples": [32], "num_samples": 16},
     "data": {"images_per_batch": 4, "rays_per_image": 64, "patch_size": 8},
-    "optim": {"steps": 10, "warmup_steps": 2},
+    "optim": {"steps": 40, "warmup_steps": 2},
     "trainer": {"eval_every": 0, "checkpoint_every": 0},
 }
 _QUICK_SCENE = {"n_views": 12, "width": 40, "height": 40}
@@ -262,7 +266,9 @@ def _worker(spec: dict, out: Path, in_process: bool = False) -> dict:
     """Run one measurement in a fresh process (cached: an existing result is reused).
 
     ``in_process`` runs it in this process instead (``--quick``: saves importing torch and Open3D for every
-    tiny run; peak memory then is this process's)."""
+    tiny run; peak memory then is this process's). A measurement that fails raises
+    :class:`~lift3d.bench.worker.MeasurementFailed` (nothing is cached: the next benchmark tries it again), its
+    traceback or the worker's stderr kept in OUT.failed.log."""
     if out.is_file():
         cached = json.loads(out.read_text())
         _check_cached_spec(out, cached.get("spec"), spec)
@@ -270,15 +276,32 @@ def _worker(spec: dict, out: Path, in_process: bool = False) -> dict:
     out.parent.mkdir(parents=True, exist_ok=True)
     spec_path = out.with_suffix(".spec.json")
     write_json_atomic(spec_path, spec)
+    log = out.with_name(out.stem + ".failed.log")
+    log.unlink(missing_ok=True)
     if in_process:
-        worker.main([str(spec_path), str(out)])
-        return json.loads(out.read_text())
+        try:
+            result = worker.measure(spec)
+        except worker.MeasurementFailed as exc:
+            write_text_atomic(log, exc.details)
+            exc.log = str(log)
+            raise
+        write_json_atomic(out, result)
+        return result
     env = dict(os.environ, LIFT3D_NO_PROGRESS="1")
     proc = subprocess.run([sys.executable, "-m", "lift3d.bench.worker", str(spec_path), str(out)],
                           capture_output=True, text=True, env=env)
     if proc.returncode != 0 or not out.is_file():
-        tail = "\n".join(proc.stderr.strip().splitlines()[-15:])
-        raise RuntimeError(f"benchmark measurement failed ({spec_path}):\n{tail}")
+        write_text_atomic(log, proc.stderr)
+        said = worker.failure_path(out)
+        if said.is_file():  # the worker says where and why
+            failure = json.loads(said.read_text())
+            said.unlink()
+            raise worker.MeasurementFailed(failure["stage"], failure["reason"], proc.stderr, log=str(log))
+        # it died without saying (killed, out of memory, a crash in native code): its last words
+        last = next((line.strip() for line in reversed(proc.stderr.splitlines()) if line.strip()), "")
+        reason = f"the worker process exited with {proc.returncode}" + (f": {last}" if last else "")
+        raise worker.MeasurementFailed(worker.KIND_STAGES.get(spec["kind"], spec["kind"]), reason, proc.stderr,
+                                       log=str(log))
     return json.loads(out.read_text())
 
 
@@ -361,6 +384,10 @@ def _record(res: dict, **tags) -> dict:
     pl = m.get("pseudo_labels") or {}
     rec["pseudo_labels"] = {k: pl.get(k) for k in ("miou", "pq_scene", "sq_scene", "rq_scene", "miou_strict",
                                                    "pq_scene_strict")}
+    # Test-view IoU of each thing class the GT views show (runs cached before the worker named the classes: none).
+    names = res.get("thing_classes") or {}
+    rec["thing_iou"] = {names[cid]: {"iou": c["iou"], "gt_pixels": c["gt_pixels"]}
+                        for cid, c in (m.get("per_class_iou_strict") or {}).items() if cid in names}
     return rec
 
 
@@ -549,37 +576,52 @@ def run_benchmark(cfg: BenchConfig) -> dict:
     cache = cfg.out / "cache"
     quick_over = _QUICK_TRAIN if cfg.quick else {}
     results: dict[str, Any] = {"machine": machine_info(), "created": _dt.datetime.now().isoformat(timespec="seconds"),
-                               "quick": cfg.quick, "seeds": list(cfg.seeds), "runs": [],
+                               "quick": cfg.quick, "seeds": list(cfg.seeds), "config": report_config(cfg),
+                               "runs": [],
                                "curves": {"label_noise": [], "pose_noise": []}, "ablation": [],
-                               "parameterisation": [], "skipped": [], "scaling": [], "export": None, "profile": None,
-                               "under_load": None}
+                               "parameterisation": [], "skipped": [], "failed": [], "scaling": [], "export": None,
+                               "profile": None, "under_load": None}
     jobs = plan_jobs(cfg)
     done: dict[Path, dict | None] = {}
+    failed: dict[Path, dict] = {}  # a failed run's record in results["failed"], by its cache file
     for job in progress_bar(jobs, desc="bench runs", disable=not cfg.progress, unit="run"):
         if job.cache not in done:  # a run several sections share is trained (or skipped) once
             eval_spec = {"num_points": 5_000 if cfg.quick else 200_000, "points3d": job.points3d}
             # What the run trains with (the cache file's name holds the rest: scene, noise, variant).
             identity = {"kind": "train", "preset": job.tags["preset"], "seed": job.scene["seed"],
                         "overrides": job.overrides}
-            if job.cache.is_file():  # finished before: its scene is not needed (nor made again)
-                cached = json.loads(job.cache.read_text())
-                _check_cached_spec(job.cache, cached.get("spec"), identity)
-                done[job.cache] = (_reevaluate(job.cache, eval_spec, in_process=cfg.quick)
-                                   if cfg.reevaluate and job.section != "ablation" else cached)
-            else:
-                try:
-                    scene = _scene(cfg, job.scene["kind"], job.scene["seed"], job.scene["noise"], job.scene["depth"],
-                                   job.scene["pose_noise"])
-                except InputError as exc:
-                    # e.g. a pose noise that would put a written camera inside geometry on this seed: the row then
-                    # has one seed less, and the report says so.
-                    results["skipped"].append({**job.tags, "section": job.section, "reason": str(exc)})
-                    done[job.cache] = None
-                    continue
-                spec = {**identity, "scene": str(scene), "output_dir": str(cfg.out / "runs" / (job.section or "runs")),
-                        "timing_repeats": 1 if cfg.quick else 10, **eval_spec}
-                done[job.cache] = _worker(spec, job.cache, in_process=cfg.quick)
+            done[job.cache] = None
+            try:
+                if job.cache.is_file():  # finished before: its scene is not needed (nor made again)
+                    cached = json.loads(job.cache.read_text())
+                    _check_cached_spec(job.cache, cached.get("spec"), identity)
+                    done[job.cache] = (_reevaluate(job.cache, eval_spec, in_process=cfg.quick)
+                                       if cfg.reevaluate and job.section != "ablation" else cached)
+                else:
+                    try:
+                        scene = _scene(cfg, job.scene["kind"], job.scene["seed"], job.scene["noise"],
+                                       job.scene["depth"], job.scene["pose_noise"])
+                    except InputError as exc:
+                        # e.g. a pose noise that would put a written camera inside geometry on this seed: the row
+                        # then has one seed less, and the report says so.
+                        results["skipped"].append({**job.tags, "section": job.section, "reason": str(exc)})
+                        continue
+                    except Exception as exc:
+                        raise worker.MeasurementFailed("scene synthesis", worker.one_line(exc),
+                                                       traceback.format_exc()) from exc
+                    spec = {**identity, "scene": str(scene),
+                            "output_dir": str(cfg.out / "runs" / (job.section or "runs")),
+                            "timing_repeats": 1 if cfg.quick else 10, **eval_spec}
+                    done[job.cache] = _worker(spec, job.cache, in_process=cfg.quick)
+            except worker.MeasurementFailed as exc:
+                # The run becomes a failed row of the report and the benchmark goes on (its row averages over the
+                # seeds that finished); nothing is cached, so the next benchmark tries it again.
+                failed[job.cache] = failure_record(job.tags, job.section or "export", exc)
+                results["failed"].append(failed[job.cache])
+                continue
         if done[job.cache] is None:
+            if job.cache in failed and (job.section or "export") not in failed[job.cache]["sections"]:
+                failed[job.cache]["sections"].append(job.section or "export")
             continue
         rec = _record(done[job.cache], **job.tags)
         if job.section in ("label_noise", "pose_noise"):
@@ -600,29 +642,76 @@ def run_benchmark(cfg: BenchConfig) -> dict:
         if cfg.reevaluate:
             for path in paths:
                 path.unlink(missing_ok=True)
-        results["export"] = dict(median_export([_worker(spec, path, in_process=cfg.quick) for path in paths]),
-                                 preset=cfg.presets[0])
+        try:
+            results["export"] = dict(median_export([_worker(spec, path, in_process=cfg.quick) for path in paths]),
+                                     preset=cfg.presets[0])
+        except worker.MeasurementFailed as exc:
+            results["failed"].append(failure_record(
+                {"measurement": f"{spec['num_points']:,}-point export of the indoor seed {cfg.seeds[0]} "
+                                f"`{cfg.presets[0]}` run"}, "export", exc))
     if cfg.scaling:
-        results["scaling"] = run_scaling(cfg, cache)
-    if cfg.profile and "indoor" in cfg.scenes:
-        scene = _scene(cfg, "indoor", cfg.seeds[0], "moderate")
-        spec = {"kind": "profile", "scene": str(scene), "preset": cfg.presets[0], "overrides": quick_over,
-                "output_dir": str(cfg.out / "runs" / "profile"), "warmup": 2 if cfg.quick else 10,
-                "steps": 2 if cfg.quick else 10, "repeats": 2 if cfg.quick else 10}
-        results["profile"] = _worker(spec, cache / f"profile_{cfg.presets[0]}.json", in_process=cfg.quick)
-    if cfg.under_load and "indoor" in cfg.scenes:
-        scene = _scene(cfg, "indoor", cfg.seeds[0], "moderate")
-        spec = {"kind": "under_load", "scene": str(scene), "preset": cfg.presets[0], "overrides": quick_over,
-                "output_dir": str(cfg.out / "runs" / "under_load"), "warmup": 1 if cfg.quick else 5,
-                "steps": 1 if cfg.quick else 10, "repeats": 1 if cfg.quick else 10, "rounds": 1 if cfg.quick else 3,
-                "settle_seconds": 0.2 if cfg.quick else 1.0}
-        results["under_load"] = _worker(spec, cache / f"under_load_{cfg.presets[0]}.json")
+        results["scaling"] = run_scaling(cfg, cache, results["failed"])
+    for name, key, title in (("profile", "profile", "profile of a training step and a render"),
+                             ("under_load", "under load", "a training step and a render beside a busy neighbour")):
+        if not getattr(cfg, name) or "indoor" not in cfg.scenes:
+            continue
+        try:
+            with worker.stage("scene synthesis"):
+                scene = _scene(cfg, "indoor", cfg.seeds[0], "moderate")
+            if name == "profile":
+                spec = {"kind": "profile", "scene": str(scene), "preset": cfg.presets[0], "overrides": quick_over,
+                        "output_dir": str(cfg.out / "runs" / "profile"), "warmup": 2 if cfg.quick else 10,
+                        "steps": 2 if cfg.quick else 10, "repeats": 2 if cfg.quick else 10}
+                results["profile"] = _worker(spec, cache / f"profile_{cfg.presets[0]}.json", in_process=cfg.quick)
+            else:  # in a process of its own even with --quick: it measures beside another process
+                spec = {"kind": "under_load", "scene": str(scene), "preset": cfg.presets[0], "overrides": quick_over,
+                        "output_dir": str(cfg.out / "runs" / "under_load"), "warmup": 1 if cfg.quick else 5,
+                        "steps": 1 if cfg.quick else 10, "repeats": 1 if cfg.quick else 10,
+                        "rounds": 1 if cfg.quick else 3, "settle_seconds": 0.2 if cfg.quick else 1.0}
+                results["under_load"] = _worker(spec, cache / f"under_load_{cfg.presets[0]}.json")
+        except worker.MeasurementFailed as exc:
+            results["failed"].append(failure_record({"measurement": f"{title} (`{cfg.presets[0]}`)"}, key, exc))
     write_reports(results, cfg)
     return results
 
 
-def run_scaling(cfg: BenchConfig, cache: Path) -> list[dict]:
-    """Step/render time and memory against resolution, views, V and U (one factor at a time)."""
+def describe_run(tags: dict) -> str:
+    """What a benchmark measurement was, in a few words (the failed and skipped rows of the report).
+
+    Examples
+    --------
+    >>> describe_run({"scene": "outdoor", "seed": 100, "noise": "moderate", "scene_depth": "sensor",
+    ...               "pose_noise": [0.0, 0.0], "preset": "fast", "variant": "all"})
+    'outdoor seed 100, moderate labels, with depth maps, `fast`'
+    >>> describe_run({"scene": "indoor", "seed": 2, "noise": "moderate", "scene_depth": "none", "preset": "fast",
+    ...               "variant": "base+S", "mode": "time", "pose_noise": [0.5, 2.0]})
+    'indoor seed 2, moderate labels, without depth maps, `fast`, base+S, equal time, pose noise 0.5°/2 cm'
+    """
+    if "measurement" in tags:
+        return str(tags["measurement"])
+    parts = [f"{tags['scene']} seed {tags['seed']}", f"{tags['noise']} labels",
+             "with depth maps" if tags.get("scene_depth", "sensor") == "sensor" else "without depth maps",
+             f"`{tags['preset']}`"]
+    if tags.get("variant") not in (None, "all"):
+        parts.append(str(tags["variant"]))
+    if tags.get("mode"):
+        parts.append(f"equal {tags['mode']}")
+    pose = tags.get("pose_noise") or (0.0, 0.0)
+    if any(pose):
+        parts.append(f"pose noise {pose[0]:g}°/{pose[1]:g} cm")
+    return ", ".join(parts)
+
+
+def failure_record(tags: dict, section: str, exc: "worker.MeasurementFailed") -> dict:
+    """A failed measurement's row of ``results["failed"]``: what it was, the section(s) it served, the stage it
+    stopped in, the one-line reason and where the whole error is."""
+    return {**tags, "status": "failed", "section": section, "sections": [section], "run": describe_run(tags),
+            "stage": exc.stage, "reason": exc.reason, "log": exc.log}
+
+
+def run_scaling(cfg: BenchConfig, cache: Path, failed: list[dict] | None = None) -> list[dict]:
+    """Step/render time and memory against resolution, views, V and U (one factor at a time). A point whose
+    measurement fails is left out of the rows and added to ``failed``."""
     if cfg.quick:
         grid = {"resolution": [32, 48], "views": [8, 16], "instance_channels": [8, 32], "classes": [0, 32]}
         base_views, base_res = 8, 32
@@ -643,11 +732,18 @@ def run_scaling(cfg: BenchConfig, cache: Path) -> list[dict]:
             over = _merge(over, {"field": {"num_instance_channels": value}})
         elif factor == "classes" and value:
             over = _merge(over, {"field": {"num_semantic_classes": value}})
-        scene = _scene(cfg, "indoor", cfg.seeds[0], "moderate", n_views=views, width=res, height=res)
-        spec = {"kind": "scaling", "scene": str(scene), "preset": cfg.presets[0], "overrides": over,
-                "output_dir": str(cfg.out / "runs" / "scaling"), "warmup": 1 if cfg.quick else 5,
-                "steps": 2 if cfg.quick else 12, "repeats": 2 if cfg.quick else 7}
-        res_ = _worker(spec, cache / f"scaling_{factor}_{value}.json", in_process=cfg.quick)
+        try:
+            with worker.stage("scene synthesis"):
+                scene = _scene(cfg, "indoor", cfg.seeds[0], "moderate", n_views=views, width=res, height=res)
+            spec = {"kind": "scaling", "scene": str(scene), "preset": cfg.presets[0], "overrides": over,
+                    "output_dir": str(cfg.out / "runs" / "scaling"), "warmup": 1 if cfg.quick else 5,
+                    "steps": 2 if cfg.quick else 12, "repeats": 2 if cfg.quick else 7}
+            res_ = _worker(spec, cache / f"scaling_{factor}_{value}.json", in_process=cfg.quick)
+        except worker.MeasurementFailed as exc:
+            if failed is None:
+                raise
+            failed.append(failure_record({"measurement": f"scaling point {factor} = {value}"}, "scaling", exc))
+            continue
         shown = res_["semantic_classes"] if factor == "classes" else value
         rows.append({"factor": factor, "value": shown, "step_ms": res_["step_ms"], "render_ms": res_["render_ms"],
                      "peak_rss_mb": res_["peak_rss_mb"], "grid_resolution": res_["grid_resolution"],
@@ -696,7 +792,8 @@ CSV_COLUMNS = ["section", "scene", "noise", "scene_depth", "inputs", "pose_noise
                "pose_refinement", "preset", "variant", "mode", "seed", "steps", "train_seconds", "peak_rss_mb",
                "render_ms_per_2048_rays", "psnr", "miou", "pq_scene", "sq_scene", "rq_scene", "miou_strict",
                "pq_scene_strict", "fscore_3d", "miou_3d", "miou_3d_strict", "objects_found_3d", "gt_objects_3d",
-               "instances_exported_3d", "pseudo_miou", "pseudo_pq_scene", "poses_scored_at"]
+               "instances_exported_3d", "pseudo_miou", "pseudo_pq_scene", "poses_scored_at", "status", "measurement",
+               "reason"]
 
 
 def results_csv(results: dict) -> str:
@@ -714,13 +811,27 @@ def results_csv(results: dict) -> str:
                        miou_3d_strict=p3.get("miou_strict"), objects_found_3d=p3.get("instance_recall"),
                        gt_objects_3d=p3.get("n_instances"), instances_exported_3d=p3.get("n_pred_instances"),
                        pseudo_miou=r["pseudo_labels"].get("miou"), pseudo_pq_scene=r["pseudo_labels"].get("pq_scene"),
-                       pose_noise_deg=pose[0], pose_noise_cm=pose[1])
+                       pose_noise_deg=pose[0], pose_noise_cm=pose[1], status="ok")
             w.writerow([row.get(c) for c in CSV_COLUMNS])
+    for f in results.get("failed") or []:  # a failed run: one row per section it served, as a finished one
+        pose = f.get("pose_noise") or [None, None]
+        for section in f.get("sections") or [f["section"]]:
+            row = dict(f, section=section, pose_noise_deg=pose[0], pose_noise_cm=pose[1], measurement=f["run"],
+                       reason=f"{f['stage']}: {f['reason']}")
+            w.writerow([row.get(c) if c in FAILED_CSV_COLUMNS else None for c in CSV_COLUMNS])
     return buf.getvalue()
+
+
+#: The columns a failed run's row fills in results.csv (what it was, and why it has no numbers).
+FAILED_CSV_COLUMNS = ("section", "scene", "noise", "scene_depth", "pose_noise_deg", "pose_noise_cm", "preset",
+                      "variant", "mode", "seed", "status", "measurement", "reason")
 
 
 #: How a user times the render figure on a run of their own, through the public API (docs/api.md).
 RENDER_THROUGH_THE_API = [
+    "",
+    "### Timing the render on a run of your own",
+    "",
     "The render figures time 2048 rays of a test view with rgb, depth, semantic and instance, the median of 10 "
     "after 2 warm-up renders (`lift3d eval` reports the same as `render_ms_per_2048_rays`). Through the public "
     "API, on any trained run:",
@@ -742,20 +853,85 @@ RENDER_THROUGH_THE_API = [
     "",
     "`render_rays` wraps the same `render_chunked` call with the conversion from and to numpy; on a trained "
     "indoor run its median matched `lift3d eval`'s within the run-to-run spread of either.",
-    "",
 ]
+
+#: The top-level sections of the benchmark page in order (docs/benchmarks.md keeps the same; a test checks both).
+PAGE_SECTIONS = ("## Which preset to use", "## How good: accuracy over scenes and seeds",
+                 "## How fast: training, rendering, export", "## The speed/accuracy trade", "## Reproduce")
+
+
+def report_config(cfg: BenchConfig) -> dict:
+    """What a benchmark run selected (results.json ``config``): the page's reproduce commands are written from it."""
+    return {"scenes": list(cfg.scenes), "presets": list(cfg.presets), "seeds": list(cfg.seeds),
+            "noises": list(cfg.noises), "inputs": list(cfg.inputs), "ablation_steps": cfg.ablation_steps,
+            "ablation_budget": cfg.ablation_budget, "ablation_modes": list(cfg.ablation_modes),
+            "ablation_variants": list(cfg.ablation_variants), "quick": cfg.quick}
+
+
+def bench_command(config: dict | None, only: str | None = None) -> str:
+    """The ``lift3d bench`` command that measures what ``config`` selected (:func:`report_config`; None: the
+    defaults), narrowed to the sections ``only`` names.
+
+    Examples
+    --------
+    >>> bench_command(None, "presets")
+    'lift3d bench --only presets'
+    >>> bench_command({"scenes": ["indoor"], "presets": ["fast"], "seeds": [0, 1, 2], "quick": False}, "curves")
+    'lift3d bench --only curves --scenes indoor --presets fast'
+    """
+    config = config or {}
+    defaults = {"scenes": ["indoor", "outdoor"], "presets": ["fast", "balanced"], "seeds": list(REPORT_SEEDS),
+                "noises": ["moderate", "view-correlated"], "inputs": ["rgb", "rgb+depth"], "ablation_steps": 1500,
+                "ablation_budget": 600.0, "ablation_modes": list(ABLATION_MODES), "ablation_variants": list(ABLATION)}
+    if config.get("quick"):
+        defaults["seeds"] = list(tables.QUICK_SEEDS)
+    words = ["lift3d", "bench"] + (["--only", only] if only else []) + (["--quick"] if config.get("quick") else [])
+    ablation = only is None or "ablation" in only.split(",")
+    for key, value in config.items():
+        if key == "quick" or value is None or value == defaults.get(key):
+            continue
+        if key.startswith("ablation_") and not ablation:
+            continue
+        text = ",".join(map(str, value)) if isinstance(value, (list, tuple)) else f"{value:g}"
+        words += ["--" + key.replace("_", "-"), text]
+    return " ".join(words)
+
+
+def failed_markdown(results: dict) -> list[str]:
+    """The runs that failed (their reason in one line) and the runs that could not be made."""
+    lines = []
+    failed = results.get("failed") or []
+    if failed:
+        lines += ["", "## Runs that failed", "",
+                  f"{len(failed)} measurement{'s' if len(failed) != 1 else ''} of this benchmark failed: the rows "
+                  "below average over the seeds that finished (their n says so), and a table whose every run failed "
+                  "is missing. The whole error is in the log file each failure names in `results.json`; `lift3d "
+                  "bench` with the same options tries a failed run again (finished ones come from the cache).",
+                  "", "| section | run | stage | reason |", "|---|---|---|---|"]
+        for f in failed:
+            reason = f["reason"].replace("|", "\\|")
+            lines.append(f"| {', '.join(f.get('sections') or [f['section']])} | {f['run']} | {f['stage']} | {reason} |")
+    if results.get("skipped"):
+        lines += ["", "**Runs that could not be made** (their rows average over fewer seeds):", ""]
+        lines += [f"- {s.get('section') or 'export'}: {describe_run(s)} — {s['reason']}" for s in results["skipped"]]
+    return lines
 
 
 def benchmarks_markdown(results: dict, pictures: dict[str, str]) -> str:
+    """The benchmark page (docs/benchmarks.md): which preset to use, how good, how fast, the trade, and how to
+    reproduce each table, written from the results (no number in it is typed by hand)."""
     m = results["machine"]
+    config = results.get("config")
     lines = [
         "# Benchmarks",
         "",
-        "Regenerated by `lift3d bench` (do not edit by hand: the numbers and the sentences about them are written "
-        "from the results). Every number below was measured in one benchmark "
-        f"run on **{m['cpu']}**, {m['cpus_available']} CPU cores, torch {m['torch']} with "
+        "How accurate and how fast lift3d's presets are on synthetic rooms and streets with noisy 2D labels, "
+        "measured in one benchmark run on this machine: "
+        f"**{m['cpu']}**, {m['cpus_available']} CPU cores, torch {m['torch']} with "
         f"{m['torch_threads']} threads{', GPU ' + m['cuda'] if m.get('cuda') else ', no GPU'}; "
-        f"{results['created']}{' (--quick: tiny scenes, smoke test only)' if results.get('quick') else ''}.",
+        f"{results['created']}{' (--quick: tiny scenes, smoke test only)' if results.get('quick') else ''}. "
+        f"Regenerated by `{bench_command(config)}` (the tables, pictures and sentences are written from its results; "
+        "do not edit by hand). Timings move with the machine and its load: compare them within one run.",
         "",
         tables.seed_note(results.get("seeds") or sorted({r["seed"] for r in results.get("runs", [])})),
     ]
@@ -765,47 +941,75 @@ def benchmarks_markdown(results: dict, pictures: dict[str, str]) -> str:
                       f"their trained checkpoints on {again[-1][:10]} (`lift3d bench --reevaluate`, after a change to "
                       "the eval or export code); their training time, memory and render timing are from the runs "
                       "themselves."]
+    lines += failed_markdown(results)
+    lines += tables.preset_choice_markdown(results)
     if results["runs"]:
         lines += tables.presets_markdown(results)
-    if "pareto" in pictures:
-        lines += ["", f"![speed/accuracy]({pictures['pareto']})"]
+        lines += tables.per_class_markdown(results)
     if any((results.get("curves") or {}).values()):
         lines += tables.curves_markdown(results, pictures.get("noise_curves"))
     if results["ablation"]:
         lines += tables.ablation_markdown(results, PAPER_ABLATION)
     if results.get("parameterisation"):
         lines += tables.parameterisation_markdown(results)
-    if results.get("skipped"):
-        lines += ["", "**Runs that could not be made** (their rows average over fewer seeds):", ""]
-        lines += [f"- {s.get('section') or 'export'}: {s['scene']} seed {s['seed']}, {s['noise']}, pose noise "
-                  f"{s['pose_noise'][0]:g}°/{s['pose_noise'][1]:g} cm — {s['reason']}" for s in results["skipped"]]
-    if results["scaling"]:
-        lines += [
-            "",
-            "## Scaling: how cost grows with the work",
-            "",
-            "One factor at a time (indoor scene; step = one training step of the preset's batch; render = 2048 "
-            "rays; peak = the measuring process's peak RSS, including the cached training pixels).",
-            "",
-            "| factor | value | step ms | render ms | peak MB | grid res | pixels |",
-            "|---|---|---|---|---|---|---|",
-        ]
-        for r in results["scaling"]:
-            lines.append(f"| {r['factor']} | {r['value']} | {_f(r['step_ms'], 1)} | {_f(r['render_ms'], 1)} | "
-                         f"{_f(r['peak_rss_mb'], 0)} | {r['grid_resolution']} | {r['pixels']} |")
-        if "scaling" in pictures:
-            lines += ["", f"![scaling]({pictures['scaling']})"]
+    lines += ["", "## How fast: training, rendering, export", "",
+              "Training time (wall time of `lift3d train`), peak memory and the render time of 2048 rays of every "
+              "preset row are in the preset table above; below, the labelled export, how cost grows with the work, "
+              "where a step and a render spend their time, and what a busy neighbour costs."]
     if results.get("export"):
         lines += export_markdown(results["export"])
+    if results["scaling"]:
+        lines += scaling_markdown(results["scaling"], pictures.get("scaling"))
     if results.get("profile"):
         lines += profile_markdown(results["profile"])
     if results.get("under_load"):
         lines += under_load_markdown(results["under_load"])
-    lines += ["", "Reproduce: `lift3d bench --out bench_out` (resumable: finished runs are cached; `--plan` lists "
-              "every run with an estimated time, `--only presets,curves,...` runs some sections, `--seeds` chooses "
-              "the scene seeds, `--quick` is the CI smoke test).", ""]
+    if results["runs"]:
+        lines += tables.preset_trade_markdown(results, pictures.get("pareto"))
+    lines += reproduce_markdown(results)
     lines += RENDER_THROUGH_THE_API
-    return "\n".join(lines)
+    return "\n".join(lines) + "\n"
+
+
+def reproduce_markdown(results: dict) -> list[str]:
+    """How to make each table again: the exact ``lift3d bench`` command per section."""
+    config = results.get("config")
+    made = [("the preset table, per-class IoU and the trade", "presets", bool(results.get("runs"))),
+            ("label and pose noise", "curves", any((results.get("curves") or {}).values())),
+            ("the ablation", "ablation", bool(results.get("ablation"))),
+            ("unbounded vs bounded", "bounded", bool(results.get("parameterisation"))),
+            ("the export", "export", bool(results.get("export"))),
+            ("scaling", "scaling", bool(results.get("scaling"))),
+            ("where the time goes", "profile", bool(results.get("profile"))),
+            ("under load", "under-load", bool(results.get("under_load")))]
+    lines = ["", "## Reproduce", "",
+             f"Everything on this page: `{bench_command(config)} --out bench_out` (resumable: finished runs are "
+             "cached in `bench_out/cache`; `--plan` lists every run with an estimated time and trains nothing; "
+             "`lift3d bench --quick` is the smoke test). Each table alone:", ""]
+    lines += [f"- {what}: `{bench_command(config, only)}`" for what, only, shown in made if shown]
+    lines += ["", "`results.json` and `results.csv` beside the page hold every run's per-seed values; a run that "
+                  "fails is a row marked `failed` there with its reason, and `lift3d bench` then exits with 1."]
+    return lines
+
+
+def scaling_markdown(rows: list[dict], picture: str | None) -> list[str]:
+    """The scaling section: step and render time and memory against one factor at a time."""
+    lines = [
+        "",
+        "### Scaling: how cost grows with the work",
+        "",
+        "One factor at a time (indoor scene; step = one training step of the preset's batch; render = 2048 "
+        "rays; peak = the measuring process's peak RSS, including the cached training pixels).",
+        "",
+        "| factor | value | step ms | render ms | peak MB | grid res | pixels |",
+        "|---|---|---|---|---|---|---|",
+    ]
+    for r in rows:
+        lines.append(f"| {r['factor']} | {r['value']} | {_f(r['step_ms'], 1)} | {_f(r['render_ms'], 1)} | "
+                     f"{_f(r['peak_rss_mb'], 0)} | {r['grid_resolution']} | {r['pixels']} |")
+    if picture:
+        lines += ["", f"![scaling]({picture})"]
+    return lines
 
 
 def profile_markdown(prof: dict) -> list[str]:
@@ -816,7 +1020,7 @@ def profile_markdown(prof: dict) -> list[str]:
                                                                       + b.get("rays_per_image", 0))
     lines = [
         "",
-        "## Where the time goes",
+        "### Where the time goes",
         "",
         f"`torch.profiler` on the indoor scene, preset `{prof['preset']}`, {prof['threads']} "
         f"thread{'s' if prof['threads'] != 1 else ''}: "
@@ -833,7 +1037,7 @@ def profile_markdown(prof: dict) -> list[str]:
         f"11–25 ms at best; the render median above is {_f(prof['render_ms'] / 25.0, 1)}–"
         f"{_f(prof['render_ms'] / 11.0, 1)} × that floor. The paper renders 2048 rays in 26.7 ms on an RTX 3090.",
         "",
-        "How to time the render figure on a run of your own through the public API is at the end of this page.",
+        "How to time the render figure on a run of your own through the public API: section \"Reproduce\".",
     ]
     for key, title in (("train", "training step"), ("render", "render of 2048 rays")):
         block = prof[key]
@@ -857,7 +1061,7 @@ def under_load_markdown(ul: dict) -> list[str]:
     """The "under load" section: a training step and a render alone and beside a busy neighbour."""
     return [
         "",
-        "## Under load: one busy neighbour",
+        "### Under load: one busy neighbour",
         "",
         f"The indoor scene, preset `{ul['preset']}`, {ul['threads']} threads, OpenMP threads waiting with "
         f"`{_waiting(ul)}`: medians of {ul['steps']} training steps and {ul['repeats']} "
@@ -897,7 +1101,7 @@ def export_markdown(ex: dict) -> list[str]:
              f"{', '.join(_f(t, 1) for t in ex['all_seconds'])} s;" if repeats > 1 else "in a fresh process (")
     return [
         "",
-        "## Export: labelled points",
+        "### Export: labelled points",
         "",
         f"`lift3d export --pointcloud` of the indoor `{ex.get('preset', '–')}` run above, {timed} "
         f"{ex['threads']} thread{'s' if ex['threads'] != 1 else ''}): extraction (isosurface, its refinement "

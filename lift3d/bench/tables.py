@@ -190,7 +190,7 @@ def presets_markdown(results: dict) -> list[str]:
     n_seeds = len(results.get("seeds") or {r["seed"] for r in results["runs"]})
     lines = [
         "",
-        "## Presets: accuracy and cost over several scenes",
+        "## How good: accuracy over scenes and seeds",
         "",
         "Test views of synthetic scenes (`lift3d synth`; indoor rooms and outdoor streets, label noise `moderate` "
         "(independent errors) or `view-correlated` (a segmenter that repeats its mistakes from similar "
@@ -276,20 +276,117 @@ def _presets_prose(rows: list[dict]) -> list[str]:
         out.append(f"- {scene}, {noise} labels: with depth maps the export's 3D F-score is {f_d:.3f} against "
                    f"{f_rgb:.3f} from {rgb['inputs']} (mean over seeds); PQ^scene changes by {fmt_diff(pq)}"
                    f"{_significance(pq)}.")
-    # 3. Further presets against the first, on the rows both have.
+    return out
+
+
+def _against_first(rows: list[dict]) -> list[tuple[dict, dict]]:
+    """Each row of a further preset with the first preset's row of the same scene, labels and inputs."""
+    first = rows[0]["key"]["preset"] if rows else None
+    at_first = [r for r in rows if r["key"]["preset"] == first]
+    pairs = []
     for row in rows:
         if row["key"]["preset"] == first:
             continue
         ref = next((r for r in at_first if all(r["key"][k] == row["key"][k] for k in ("scene", "noise", "scene_depth",
                                                                                       "variant"))), None)
-        if ref is None:
-            continue
-        t, t0 = row["metrics"]["train_seconds"]["mean"], ref["metrics"]["train_seconds"]["mean"]
-        parts = [f"{label} {fmt_diff(compare(row, ref, k))}{_significance(compare(row, ref, k))}"
-                 for k, label in (("pq_scene", "PQ^scene"), ("miou", "mIoU"), ("fscore_3d", "3D F-score"))]
-        out.append(f"- `{row['key']['preset']}` against `{first}` ({_row_name(row, preset=False)}): "
-                   + ", ".join(parts) + (f", for {t / t0:.1f}× the training time." if t and t0 else "."))
-    return out
+        if ref is not None:
+            pairs.append((row, ref))
+    return pairs
+
+
+def _trade_sentence(row: dict, ref: dict) -> str:
+    """A further preset against the first on one row: paired differences, and the training time it costs."""
+    t, t0 = row["metrics"]["train_seconds"]["mean"], ref["metrics"]["train_seconds"]["mean"]
+    parts = [f"{label} {fmt_diff(compare(row, ref, k), nd)}{_significance(compare(row, ref, k))}"
+             for k, label, nd in (("psnr", "PSNR", 2), ("pq_scene", "PQ^scene", 3), ("miou", "mIoU", 3),
+                                  ("fscore_3d", "3D F-score", 3), ("miou_3d", "point mIoU", 3))]
+    return (f"`{row['key']['preset']}` against `{ref['key']['preset']}` ({_row_name(row, preset=False)}, paired by "
+            "seed): " + ", ".join(parts) + (f", for {t / t0:.1f}× the training time" if t and t0 else ""))
+
+
+def preset_choice_markdown(results: dict) -> list[str]:
+    """The page's first section: which preset to use, with each preset's cost and accuracy on the indoor
+    RGB + depth rows (the rows every preset has) and what the further presets buy over the first."""
+    rows = group_rows(results.get("runs", []), ("scene", "noise", "scene_depth", "preset", "variant"))
+    lines = ["", "## Which preset to use", "",
+             "`fast` is the default (the demo's preset, and the one the benchmark measures on every scene): use it to "
+             "check a capture end to end and on CPUs. `balanced` and `quality` train longer for more colour and "
+             "geometry; [presets.md](presets.md) says what each setting of a preset buys. Measured here (means over "
+             "the seeds; the tables below have the spread):", ""]
+    shown = [r for r in rows if r["key"]["scene"] == "indoor" and r["key"]["scene_depth"] == "sensor"
+             and r["key"]["variant"] == "all"]
+    for row in shown:
+        mt, k = row["metrics"], row["key"]
+        lines.append(f"- `{k['preset']}`, indoor, {k['noise']} labels, {row['inputs']}: trains in "
+                     f"{fmt_pm(mt['train_seconds']['mean'], None, 0)} s, renders 2048 rays in "
+                     f"{fmt_pm(mt['render_ms']['mean'], None, 1)} ms, PQ^scene {fmt_pm(mt['pq_scene']['mean'], None)}, "
+                     f"3D F-score {fmt_pm(mt['fscore_3d']['mean'], None)}, point mIoU "
+                     f"{fmt_pm(mt['miou_3d']['mean'], None)}.")
+    for row, ref in _against_first(rows):
+        lines.append(f"- {_trade_sentence(row, ref)}.")
+    measured = {r["key"]["preset"] for r in rows}
+    missing = [p for p in ("fast", "balanced", "quality") if p not in measured]
+    if missing:
+        them = "it" if len(missing) == 1 else "them"
+        lines.append(f"- Not measured in this benchmark: {', '.join(f'`{p}`' for p in missing)} "
+                     f"(`lift3d bench --presets fast,{','.join(missing)}` adds {them}).")
+    return lines
+
+
+def preset_trade_markdown(results: dict, picture: str | None) -> list[str]:
+    """The speed/accuracy trade: every preset row's training time against its accuracy, and the further presets
+    against the first seed by seed."""
+    rows = group_rows(results.get("runs", []), ("scene", "noise", "scene_depth", "preset", "variant"))
+    lines = ["", "## The speed/accuracy trade", "",
+             "Training time against PQ^scene and 3D F-score for every row of the preset table (means over the "
+             "seeds). Timings move with the machine and its load: compare them within one benchmark run."]
+    if picture:
+        lines += ["", f"![speed/accuracy]({picture})"]
+    lines += ["", "| scene | labels | inputs | preset | train s | render ms | PQ^scene | 3D F-score |",
+              "|---|---|---|---|---|---|---|---|"]
+    for row in rows:
+        k = row["key"]
+        lines.append(f"| {k['scene']} | {_labels(k['noise'])} | {row['inputs']} | {k['preset']} | "
+                     f"{_cell(row, 'train_seconds', 0)} | {_cell(row, 'render_ms', 1)} | {_cell(row, 'pq_scene')} | "
+                     f"{_cell(row, 'fscore_3d')} |")
+    pairs = _against_first(rows)
+    if pairs:
+        lines += [""] + [f"- {_trade_sentence(row, ref)}." for row, ref in pairs]
+    return lines
+
+
+#: Thing classes the test views show with fewer GT pixels are left out of the per-class table: over 12 test
+#: views of 128² a class of a few dozen pixels swings between IoU 0 and 0.5 with a handful of them.
+PER_CLASS_MIN_PIXELS = 300
+
+
+def per_class_markdown(results: dict) -> list[str]:
+    """Per-class IoU of the thing classes on the test views: the indoor rows of the first preset, each class's
+    mean over the seeds whose test views show it with at least :data:`PER_CLASS_MIN_PIXELS` pixels."""
+    runs = [r for r in results.get("runs", []) if r.get("thing_iou") and r.get("scene") == "indoor"]
+    if not runs:
+        return []
+    first = results["runs"][0]["preset"]
+    rows = group_rows([r for r in runs if r["preset"] == first], ("noise", "scene_depth"))
+    names = sorted({name for r in runs for name, c in r["thing_iou"].items() if c["gt_pixels"] >= PER_CLASS_MIN_PIXELS})
+    if not names:
+        return []
+    lines = ["", "### Per-class IoU of the thing classes", "",
+             f"Indoor rows of `{first}`; each class's IoU on the test views (every class the GT views show, however "
+             f"small: `per_class_iou_strict` in `metrics.json`), the mean over the seeds whose test views show it with "
+             f"at least {PER_CLASS_MIN_PIXELS} pixels (n = how many). Smaller classes are left out: a few dozen "
+             "pixels swing between IoU 0 and 0.5.", "",
+             "| thing class | " + " | ".join(f"{_labels(r['key']['noise'])}, {r['inputs']}" for r in rows) + " |",
+             "|---|" + "---|" * len(rows)]
+    for name in names:
+        cells = []
+        for row in rows:
+            vals = [r["thing_iou"][name]["iou"] for r in row["records"]
+                    if name in r["thing_iou"] and r["thing_iou"][name]["gt_pixels"] >= PER_CLASS_MIN_PIXELS]
+            m, _, n = mean_std(vals)
+            cells.append("–" if m is None else f"{m:.2f} (n={n})")
+        lines.append(f"| {name} | " + " | ".join(cells) + " |")
+    return lines
 
 
 def _significance(d: dict) -> str:
@@ -314,7 +411,7 @@ def curves_markdown(results: dict, picture: str | None) -> list[str]:
     n_seeds = len(results.get("seeds") or [])
     lines = [
         "",
-        "## Robustness: label noise and pose noise",
+        "### Label noise and pose noise",
         "",
         "Indoor scenes, the first preset, RGB + sensor depth, the same seeds. *Label noise*: the simulated "
         "segmenter from `clean` (GT classes and masks, per-frame ids) through `moderate` and `hard` (independent "
@@ -408,7 +505,7 @@ def ablation_markdown(results: dict, paper: dict[str, tuple[float, float, float]
                      "budget), so a cheaper variant takes more steps")
     lines = [
         "",
-        "## Ablation (the paper's Table 6, on our indoor scenes)",
+        "### Ablation: the paper's Table 6 on our rooms",
         "",
         "Base = a plain NeRF MLP field with the semantic and instance losses; S = the voxel-grid model; L_seg = "
         "segment consistency; L_feat = the perceptual prior. RGB only, as in the paper, `moderate` labels; "
@@ -487,7 +584,7 @@ def parameterisation_markdown(results: dict) -> list[str]:
     n_seeds = len(results.get("seeds") or [])
     lines = [
         "",
-        "## Unbounded vs bounded space (outdoor scenes)",
+        "### Unbounded vs bounded space (outdoor)",
         "",
         "The same preset and seeds on the outdoor scenes (moderate labels, RGB + depth), once with the contracted "
         "field that covers all of space (the default for scenes whose cameras look out of their box) and once "

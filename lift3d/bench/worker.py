@@ -15,7 +15,10 @@
   step and 2048-ray render alone and beside one busy 2-thread process (:data:`BUSY_NEIGHBOUR`), in
   interleaved rounds; medians and the slowdown.
 
-The result is written atomically to OUT.json; the benchmark skips specs whose result already exists.
+The result is written atomically to OUT.json; the benchmark skips specs whose result already exists. A
+measurement that fails (training, evaluation, export, ...) writes no result: it raises :class:`MeasurementFailed`
+in-process, and as a process writes OUT.failed.json (stage, one-line reason, traceback) and exits with 1, so that
+the benchmark reports it as a failed row and goes on.
 """
 
 from __future__ import annotations
@@ -25,6 +28,8 @@ import os
 import subprocess
 import sys
 import time
+import traceback
+from contextlib import contextmanager
 from pathlib import Path
 
 import numpy as np
@@ -32,6 +37,7 @@ import torch
 from torch.profiler import ProfilerActivity, profile
 
 from lift3d.data.scene import load_scene
+from lift3d.errors import Lift3DError
 from lift3d.eval.evaluate import evaluate_run, json_safe
 from lift3d.export.pointcloud import benchmark_export
 from lift3d.model.run_folder import RunFolder
@@ -42,17 +48,56 @@ from lift3d.utils.memory import peak_rss_mb
 from lift3d.utils.threads import openmp_waiting
 
 
+class MeasurementFailed(Exception):
+    """A measurement that did not finish: the ``stage`` it stopped in (``training``, ``evaluation``, ``export``,
+    ...), a one-line ``reason`` and the ``details`` (the traceback, or the end of the worker's stderr)."""
+
+    def __init__(self, stage: str, reason: str, details: str = "", log: str | None = None):
+        super().__init__(f"{stage}: {reason}")
+        self.stage, self.reason, self.details = stage, reason, details
+        #: The file that keeps ``details`` (set by the benchmark runner).
+        self.log = log
+
+
+def one_line(exc: BaseException) -> str:
+    r"""An exception as one line: lift3d's own errors as they read on the CLI, others with their type.
+
+    Examples
+    --------
+    >>> one_line(RuntimeError("CUDA out of memory.\nTried to allocate 2 GiB"))
+    'RuntimeError: CUDA out of memory. | Tried to allocate 2 GiB'
+    """
+    text = " | ".join(part.strip() for part in str(exc).splitlines() if part.strip())
+    if isinstance(exc, Lift3DError):
+        return text or type(exc).__name__
+    return f"{type(exc).__name__}: {text}" if text else type(exc).__name__
+
+
+@contextmanager
+def stage(name: str):
+    """Turn any error of the block into :class:`MeasurementFailed` naming the stage (Ctrl-C still stops)."""
+    try:
+        yield
+    except MeasurementFailed:
+        raise
+    except Exception as exc:
+        raise MeasurementFailed(name, one_line(exc), traceback.format_exc()) from exc
+
+
 def run_train(spec: dict) -> dict:
     overrides = json.loads(json.dumps(spec.get("overrides", {})))
     overrides.setdefault("trainer", {})["seed"] = int(spec.get("seed", 0))
     start = time.perf_counter()
-    result = train(spec["scene"], preset=spec["preset"], output_dir=spec["output_dir"], overrides=overrides,
-                   progress=bool(spec.get("progress", False)), print_summary=False)
+    with stage("training"):
+        result = train(spec["scene"], preset=spec["preset"], output_dir=spec["output_dir"], overrides=overrides,
+                       progress=bool(spec.get("progress", False)), print_summary=False)
     train_wall = time.perf_counter() - start
     rss_train = peak_rss_mb()  # the peak only grows: read it before evaluation adds its own
-    metrics = evaluate_run(result.run.path, split="test", progress=False, num_points=int(spec.get("num_points", 200_000)),
-                           timing_repeats=int(spec.get("timing_repeats", 10)),
-                           with_points3d=bool(spec.get("points3d", True)))
+    with stage("evaluation"):  # the 3D metrics' labelled export included
+        metrics = evaluate_run(result.run.path, split="test", progress=False,
+                               num_points=int(spec.get("num_points", 200_000)),
+                               timing_repeats=int(spec.get("timing_repeats", 10)),
+                               with_points3d=bool(spec.get("points3d", True)))
     return json_safe({
         "run": str(result.run.path),
         "steps": result.steps,
@@ -64,6 +109,8 @@ def run_train(spec: dict) -> dict:
         # benchmark derives the inputs from depth_supervision, runner.run_inputs).
         "inputs": result.summary.get("inputs"),
         "pose_refinement": bool(result.summary.get("pose_refinement", False)),
+        # The scene's thing classes by id: the report's per-class table names the classes of per_class_iou_strict.
+        "thing_classes": {str(c.id): c.name for c in load_scene(spec["scene"]).categories if c.isthing},
         "metrics": metrics,
     })
 
@@ -227,14 +274,37 @@ def run_export(spec: dict) -> dict:
     return benchmark_export(spec["run"], num_points=int(spec.get("num_points", 1_000_000)))
 
 
+#: The stage a measurement fails in when no finer stage says (``train`` names its two, training and evaluation).
+KIND_STAGES = {"train": "training or evaluation", "evaluate": "evaluation", "scaling": "scaling",
+               "profile": "profile", "export": "export", "under_load": "under load"}
+
+
+def measure(spec: dict) -> dict:
+    """The measurement ``spec`` asks for, with the spec in it; :class:`MeasurementFailed` when it fails."""
+    kinds = {"train": run_train, "evaluate": run_evaluate, "scaling": run_scaling, "profile": run_profile,
+             "export": run_export, "under_load": run_under_load}
+    with stage(KIND_STAGES.get(spec["kind"], spec["kind"])):
+        result = kinds[spec["kind"]](spec)
+    result["spec"] = spec
+    return result
+
+
+def failure_path(out: Path) -> Path:
+    """Where a worker process says why its measurement failed: OUT.failed.json beside OUT.json."""
+    return out.with_name(out.stem + ".failed.json")
+
+
 def main(argv: list[str] | None = None) -> int:
     argv = sys.argv[1:] if argv is None else argv
     spec = json.loads(Path(argv[0]).read_text())
     out = Path(argv[1])
-    kinds = {"train": run_train, "evaluate": run_evaluate, "scaling": run_scaling, "profile": run_profile,
-             "export": run_export, "under_load": run_under_load}
-    result = kinds[spec["kind"]](spec)
-    result["spec"] = spec
+    failure_path(out).unlink(missing_ok=True)
+    try:
+        result = measure(spec)
+    except MeasurementFailed as exc:
+        write_json_atomic(failure_path(out), {"stage": exc.stage, "reason": exc.reason, "details": exc.details})
+        print(exc.details, file=sys.stderr)
+        return 1
     write_json_atomic(out, result)
     return 0
 

@@ -30,7 +30,8 @@ OUT/noise_curves.png, OUT/scaling.png, OUT/benchmarks.md and, for a full run fro
 regenerates docs/benchmarks.md (a run narrowed by --only, --scenes, --seeds, ... leaves it alone unless
 --docs-dir names where to write). Resumable: finished measurements are cached in OUT/cache. The full benchmark takes many
 hours on 2 CPU cores: --plan lists every run with an estimated time (and trains nothing), --only runs some
-sections; --quick runs tiny scenes (CI smoke test).
+sections; --quick runs tiny scenes (CI smoke test). A measurement that fails (training, evaluation, export)
+becomes a row marked failed with its reason, the benchmark goes on, and the exit code is 1.
 
 examples:
   lift3d bench --plan                                   # what the full run would do, and how long
@@ -168,4 +169,10 @@ def run(args: argparse.Namespace) -> int:
     print(f"  {len(results['runs'])} preset-table runs, {sum(map(len, curves.values()))} noise-curve runs, "
           f"{len(results['ablation'])} ablation runs, {len(results['scaling'])} scaling points"
           + (f"; {len(results['skipped'])} runs could not be made (see benchmarks.md)" if results.get("skipped") else ""))
-    return 0
+    failed = results.get("failed") or []
+    for f in failed:
+        print(f"  failed: {f['run']} ({', '.join(f['sections'])}): {f['stage']}: {f['reason']}")
+    if failed:
+        print(f"{len(failed)} measurement{'s' if len(failed) != 1 else ''} failed: their rows are marked failed in "
+              "results.json, results.csv and benchmarks.md")
+    return 1 if failed else 0

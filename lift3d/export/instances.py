@@ -370,7 +370,7 @@ def join_filled_instances(xyz: np.ndarray, semantic: np.ndarray, instance: np.nd
 #: Where the instance ids of rendered thing pixels come from (``lift3d eval --instances``, ``lift3d render
 #: --instances``): ``export``, the exported cloud's objects (what instances.json lists; the default), or
 #: ``field``, the argmax of the instance head. Export by default: on eight tuning rooms its PQ^scene was 0.033
-#: higher on average (docs/benchmarks.md).
+#: higher on average (docs/notes/2026-11-29-benchmark-history.md, "Instance ids from the export in 2D").
 INSTANCE_SOURCES = ("export", "field")
 
 

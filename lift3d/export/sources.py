@@ -90,7 +90,8 @@ def draw_points(loaded: LoadedRun, scene: Scene, settings: SourceSettings, sourc
 
 def resolve_point_source(source: str, loaded: LoadedRun, scene: Scene) -> tuple[str, str]:
     """The source ``auto`` stands for, and why: ``tsdf`` for an unbounded scene (a street) whose every training
-    frame has a depth map, where the fused depth scored better in 3D (docs/benchmarks.md, "Export sources":
+    frame has a depth map, where the fused depth scored better in 3D
+    (docs/notes/2026-11-29-benchmark-history.md, "Export sources":
     F-score +0.06 on the reporting streets, +0.13 / +0.02 on two tuning streets; the isosurface reached 62–87 %
     of their GT points); ``surface`` everywhere else (rooms, and streets from images alone, where the fused
     rendered depth is haze). Any other source is returned as given."""
@@ -164,12 +165,34 @@ def _tsdf_points(loaded: LoadedRun, scene: Scene, settings: SourceSettings, prog
     fused = fuse_rendered_depth(loaded, scene, progress=progress)
     timings["tsdf"] = time.perf_counter() - t
     if len(fused.faces) == 0:
-        raise InputError(loaded.run.path, "the fused rendered depth has no surface (no training view renders an "
-                                          f"opacity of {fused.info['min_opacity']} anywhere: train longer)")
+        raise InputError(loaded.run.path,
+                         f"the fused rendered depth has no surface: {_why_no_fused_surface(fused.info)}")
     x, pick, bary = sample_surface(fused.vertices, fused.faces, settings.num_points)
     rgb = (bary[:, :, None] * fused.colors[fused.faces[pick]].astype(np.float64)).sum(1)
     return DrawnPoints(LabelledPoints(x, rgb=np.clip(rgb + 0.5, 0, 255).astype(np.uint8)), {"tsdf": fused.info},
                        grid_link=4.0 * fused.voxel)
+
+
+def _why_no_fused_surface(info: dict[str, Any]) -> str:
+    """Why the training views' fused depth holds no surface, from :func:`fuse_rendered_depth`'s ``info``.
+
+    Examples
+    --------
+    >>> _why_no_fused_surface({"min_opacity": 0.5, "opaque_pixels": 0, "fused_pixels": 0})
+    'no training view renders an opacity of 0.5 anywhere: train longer'
+    >>> _why_no_fused_surface({"min_opacity": 0.5, "opaque_pixels": 900, "fused_pixels": 0, "cube_half_width": 4.0,
+    ...                        "median_opaque_depth": 160.4})  # doctest: +NORMALIZE_WHITESPACE
+    'the training views are opaque only beyond the fused cube (median depth 160 normalised units; the cube reaches
+    4), so the field has no foreground surface yet: train longer, or export with --source surface'
+    """
+    if not info.get("opaque_pixels"):
+        return f"no training view renders an opacity of {info['min_opacity']} anywhere: train longer"
+    if not info.get("fused_pixels"):
+        return (f"the training views are opaque only beyond the fused cube (median depth "
+                f"{info['median_opaque_depth']:.0f} normalised units; the cube reaches {info['cube_half_width']:g}), "
+                "so the field has no foreground surface yet: train longer, or export with --source surface")
+    return (f"{info['fused_pixels']} opaque pixels of the training views lie in the fused cube, but their depths do "
+            "not agree on a surface: train longer, or export with --source surface")
 
 
 def _ray_points(loaded: LoadedRun, scene: Scene, settings: SourceSettings, progress: bool,

@@ -23,7 +23,8 @@ orientation (a rug on the floor, a window in a wall) never exchange points.
 
 Chosen on twelve tuning runs (rooms 5–10 with sensor depth, rooms 5, 6, 8, 13 and 15 from images alone):
 point mIoU rose on eleven (+0.001 to +0.013; −0.0004 on the twelfth). With sensor depth 94–98 % of the moved
-points took their GT class, against 2–6 % before (docs/benchmarks.md).
+points took their GT class, against 2–6 % before (docs/notes/2026-11-29-benchmark-history.md,
+"Why point mIoU trails the 2D mIoU").
 
 Examples
 --------

@@ -114,7 +114,9 @@ def fuse_rendered_depth(loaded: LoadedRun, scene: Scene, *, voxel: float | None 
         color_type=o3d.pipelines.integration.TSDFVolumeColorType.RGB8, origin=np.full((3, 1), -half))
     c2w = opengl_to_opencv(loaded.norm.c2w_normalized(cams.c2w))
     device = next(model.parameters()).device
-    fused_pixels = 0
+    # What each view gives the fusion: opaque pixels, and those of them whose surface lies inside the cube (a
+    # barely trained street can be opaque only at its contracted background, which the cube does not reach).
+    opaque_pixels, fused_pixels, opaque_depths = 0, 0, []
     for i in progress_bar(frames, desc="tsdf: render and fuse", disable=not progress, unit="view"):
         i = int(i)
         w, h = int(cams.width[i]) // ds, int(cams.height[i]) // ds
@@ -124,9 +126,13 @@ def fuse_rendered_depth(loaded: LoadedRun, scene: Scene, *, voxel: float | None 
         out = model.render_chunked(torch.as_tensor(np.ascontiguousarray(o), dtype=torch.float32, device=device),
                                    torch.as_tensor(d, dtype=torch.float32, device=device), with_labels=False)
         opacity = out["opacity"].cpu().numpy()
-        z = out["depth"].cpu().numpy() / np.maximum(opacity, 1e-6) * cos
-        z = np.where(opacity >= min_opacity, z, 0.0).astype(np.float32).reshape(h, w)
-        fused_pixels += int((z > 0).sum())
+        distance = out["depth"].cpu().numpy() / np.maximum(opacity, 1e-6)
+        opaque = opacity >= min_opacity
+        inside = opaque & np.all(np.abs(o + d * distance[:, None]) <= half, axis=1)
+        opaque_pixels += int(opaque.sum())
+        fused_pixels += int(inside.sum())
+        opaque_depths.append(distance[opaque])
+        z = np.where(opaque, distance * cos, 0.0).astype(np.float32).reshape(h, w)
         rgb = (out["rgb"].clamp(0, 1).cpu().numpy() * 255 + 0.5).astype(np.uint8).reshape(h, w, 3)
         rgbd = o3d.geometry.RGBDImage.create_from_color_and_depth(
             o3d.geometry.Image(np.ascontiguousarray(rgb)), o3d.geometry.Image(z), depth_scale=1.0,
@@ -138,7 +144,10 @@ def fuse_rendered_depth(loaded: LoadedRun, scene: Scene, *, voxel: float | None 
     faces = np.asarray(mesh.triangles, np.int64)
     colors = (np.clip(np.asarray(mesh.vertex_colors), 0, 1) * 255 + 0.5).astype(np.uint8)
     info = {"views": int(len(frames)), "downscale": ds, "voxel": voxel, "resolution": resolution, "trunc_voxels": float(trunc_voxels),
-            "min_opacity": float(min_opacity), "fused_pixels": fused_pixels, "faces": int(len(faces)),
+            "min_opacity": float(min_opacity), "opaque_pixels": opaque_pixels, "fused_pixels": fused_pixels,
+            "cube_half_width": half,
+            "median_opaque_depth": float(np.median(np.concatenate(opaque_depths))) if opaque_pixels else None,
+            "faces": int(len(faces)),
             "seconds": round(time.perf_counter() - t0, 2)}
     return FusedSurface(vertices, faces, colors, voxel, info)
 

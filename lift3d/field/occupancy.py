@@ -213,4 +213,5 @@ class OccupancyConfig:
     """Per update, a cell's remembered density decays by this factor unless measured again."""
     in_training: bool = False
     """Training renders also skip empty cells (zero density there; the grid always applies when rendering,
-    evaluating and exporting). Off by default: see docs/benchmarks.md for what it does to accuracy."""
+    evaluating and exporting). Off by default: what it does to accuracy in training is not measured yet
+    (docs/presets.md)."""

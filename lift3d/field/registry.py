@@ -66,7 +66,8 @@ class FieldConfig:
     and rays start and stop at it, not at the normalised cube around it (padded and cubic: a 7 × 5 × 2.45 m
     room's cube reaches 2.4 m above its ceiling). With whole cells only, an images-only room's ceiling rose into
     the cells the box cuts (exported up to 11 cm above the box). With a depth map in every training frame the
-    rays keep the cube: there the box cost F-score 0.001-0.005 and point mIoU 0.001-0.007 (docs/benchmarks.md).
+    rays keep the cube: there the box cost F-score 0.001-0.005 and point mIoU 0.001-0.007 (the benchmark notes,
+    docs/notes/2026-11-29-benchmark-history.md, "Rays that stop at the room's box").
     The choice goes to ``config.yml`` (``scene.render_box``). Turn off when the declared box is too tight."""
     scene_box_pad: float = 0.005
     """With ``clip_to_scene_box``: how far the field's box reaches past the ``scene_box``, as a share of its

@@ -13,7 +13,8 @@ from lift3d.render.rays import RayGenerator
 
 #: Thing segments (category, instance) covering less than this fraction of a rendered frame take the labels of
 #: the pixels around them (:func:`merge_small_segments`): 16 pixels of a 128 × 128 frame. Chosen on the
-#: tuning runs (rooms 5 and 6, `fast`, with and without depth maps), see docs/benchmarks.md.
+#: tuning runs (rooms 5 and 6, `fast`, with and without depth maps), see docs/notes/2026-11-29-benchmark-history.md,
+#: "Small thing segments in renders".
 MIN_SEGMENT_FRACTION = 0.001
 
 

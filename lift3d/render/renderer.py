@@ -77,7 +77,8 @@ class SamplingConfig:
     decoders run (and learn) only on the fewest that hold this fraction of their weight, scaled up to the
     weight of all of them, as ``render_label_coverage`` does outside training (0 = all of them; in [0, 1]).
     0.9 made `fast` steps 11 % faster (indoor seed 0) but cost room 6 of the tuning rooms 0.07 PQ^scene and
-    0.014 point mIoU (room 5: no change), so it is off (docs/benchmarks.md)."""
+    0.014 point mIoU (room 5: no change), so it is off (docs/notes/2026-11-29-benchmark-history.md, "Where the
+    time goes")."""
     render_color_coverage: float = 0.0
     """Renders outside training: the colour decoder runs only on the fewest of a ray's samples (above
     ``head_weight_threshold``) that hold this fraction of their weight, scaled up to the weight of all of them
