@@ -50,6 +50,13 @@ THING, STUFF = 3, 1  # category ids of the tiny model's label space (semantic_id
 WORLD_CENTER, WORLD_SCALE = np.array([1.0, 2.0, 3.0]), 0.5  # x_norm = (x_world - center) * scale
 
 
+
+def extract_analytic(loaded, scene, **options):
+    """:func:`extract_labelled_points` on the analytic scene without the view-surface step: the analytic field's
+    rays reach an opacity of 0.5 on a tenth of its views' pixels, behind its shells' isosurface, so the step (tested
+    on its own in test_export_steps.py) would judge the shells by renders that do not show them."""
+    return extract_labelled_points(loaded, scene, **{"view_surface": False, **options})
+
 def _inside_distance(x: torch.Tensor) -> torch.Tensor:
     """Signed distance *into* the nearest solid (positive inside)."""
     ca, ra_out, ra_in = SHELL_A
@@ -140,7 +147,7 @@ def _normalized(xyz_world: np.ndarray) -> np.ndarray:
 def surface_points(analytic):
     # The ring scene's 2D labels show one stuff segment per view: nothing would confirm the analytic balls as
     # things (the clean-up's support rule is tested in test_instance_cleanup.py).
-    return extract_labelled_points(analytic.loaded, analytic.scene, num_points=20000, min_support_views=0)
+    return extract_analytic(analytic.loaded, analytic.scene, num_points=20000, min_support_views=0)
 
 
 # ------------------------------------------------------------------------------------------ geometry
@@ -291,7 +298,7 @@ def test_refinement_leaves_crevice_vertices_alone():
     assert (moved_by[facing_gap] < 0.75 * voxel).all()  # stayed on its own side of the gap
 
 def test_normalized_frame_and_transform(analytic, surface_points):
-    norm_pts = extract_labelled_points(analytic.loaded, analytic.scene, num_points=20000, frame="normalized",
+    norm_pts = extract_analytic(analytic.loaded, analytic.scene, num_points=20000, frame="normalized",
                                        density_threshold=surface_points.thresholds["density"])
     np.testing.assert_allclose(norm_pts.xyz, _normalized(surface_points.xyz), atol=1e-5)
     # transform maps normalised → world.
@@ -316,7 +323,7 @@ def dense_uniform_samples(model):
 def test_rays_source_backprojects_opaque_rays(analytic):
     # Only the back-projection is under test (see dense_uniform_samples).
     with dense_uniform_samples(analytic.loaded.model):
-        pts = extract_labelled_points(analytic.loaded, analytic.scene, source="rays", num_points=2000)
+        pts = extract_analytic(analytic.loaded, analytic.scene, source="rays", num_points=2000)
     x = _normalized(pts.xyz)
     d_a = np.linalg.norm(x - SHELL_A[0], axis=1)
     d_b = np.linalg.norm(x - BALL_B[0], axis=1)
@@ -329,7 +336,7 @@ def test_rays_source_backprojects_opaque_rays(analytic):
 
 def test_tsdf_source_fuses_the_rendered_depth_of_the_training_views(analytic):
     with dense_uniform_samples(analytic.loaded.model):
-        pts = extract_labelled_points(analytic.loaded, analytic.scene, source="tsdf", num_points=4000,
+        pts = extract_analytic(analytic.loaded, analytic.scene, source="tsdf", num_points=4000,
                                       min_support_views=0)  # no 2D thing segments here (see surface_points)
     x = _normalized(pts.xyz)
     voxel = pts.thresholds["tsdf"]["voxel"]
@@ -348,7 +355,7 @@ def test_tsdf_source_fuses_the_rendered_depth_of_the_training_views(analytic):
     info = pts.thresholds["tsdf"]
     assert info["views"] == 8 and info["fused_pixels"] > 0
     with pytest.raises(InputError, match="--source"):
-        extract_labelled_points(analytic.loaded, analytic.scene, source="voxels", num_points=10)
+        extract_analytic(analytic.loaded, analytic.scene, source="voxels", num_points=10)
 
 
 def test_box_fill_adds_the_rendered_surface_where_a_soft_wall_at_the_box_has_no_isosurface(analytic):
@@ -470,7 +477,7 @@ def test_obb_crop_keeps_exactly_the_points_inside(analytic, surface_points):
     # A box around ball B only (world frame), rotated 45° about z.
     center = BALL_B[0] / WORLD_SCALE + WORLD_CENTER
     box = OrientedBox.from_params(center, (0.0, 0.0, np.pi / 4), (0.8, 0.8, 0.8))
-    cropped = extract_labelled_points(analytic.loaded, analytic.scene, num_points=20000, obb=box,
+    cropped = extract_analytic(analytic.loaded, analytic.scene, num_points=20000, obb=box,
                                       density_threshold=surface_points.thresholds["density"])
     assert 0 < len(cropped) < len(surface_points)
     assert box.contains(cropped.xyz).all()
@@ -508,7 +515,7 @@ def test_voxel_downsampling_votes_labels_instead_of_averaging():
 
 def test_voxel_size_option_in_the_pipeline(analytic, surface_points):
     voxel = 0.1  # world units
-    pts = extract_labelled_points(analytic.loaded, analytic.scene, num_points=20000, voxel_size=voxel,
+    pts = extract_analytic(analytic.loaded, analytic.scene, num_points=20000, voxel_size=voxel,
                                   density_threshold=surface_points.thresholds["density"])
     keys = np.floor(pts.xyz / voxel).astype(np.int64)
     assert len(np.unique(keys, axis=0)) == len(pts) < len(surface_points)
@@ -560,7 +567,7 @@ def test_min_points_in_the_pipeline(analytic, surface_points):
     # would take the label of its surroundings, but nothing is within reach of it: it is dropped.
     pts = surface_points
     b_size = int((pts.instance == 2).sum())
-    pruned = extract_labelled_points(analytic.loaded, analytic.scene, num_points=20000, min_points=b_size + 1,
+    pruned = extract_analytic(analytic.loaded, analytic.scene, num_points=20000, min_points=b_size + 1,
                                      density_threshold=pts.thresholds["density"])
     assert pruned.instance.max() == 1
     assert len(pruned) == len(pts) - b_size
@@ -568,14 +575,14 @@ def test_min_points_in_the_pipeline(analytic, surface_points):
 
 
 def test_min_confidence_filter(analytic, surface_points):
-    pts = extract_labelled_points(analytic.loaded, analytic.scene, num_points=20000, min_confidence=0.9999999,
+    pts = extract_analytic(analytic.loaded, analytic.scene, num_points=20000, min_confidence=0.9999999,
                                   density_threshold=surface_points.thresholds["density"])
     assert len(pts) < len(surface_points)
     assert (pts.confidence >= 0.9999999).all()
 
 
 def test_outlier_removal_keeps_a_subset_and_records_its_settings(analytic, surface_points):
-    pts = extract_labelled_points(analytic.loaded, analytic.scene, num_points=20000, remove_outliers=True,
+    pts = extract_analytic(analytic.loaded, analytic.scene, num_points=20000, remove_outliers=True,
                                   std_ratio=0.5, density_threshold=surface_points.thresholds["density"])
     assert 0 < len(pts) < len(surface_points)
     before = {tuple(p) for p in surface_points.xyz.round(5).tolist()}
@@ -590,7 +597,7 @@ def test_bad_options_are_input_errors(analytic):
                          ({"num_points": 0}, "--num-points"), ({"voxel_size": -1.0}, "--voxel-size"),
                          ({"min_confidence": 2.0}, "--min-confidence"), ({"density_threshold": -1.0}, "--density")):
         with pytest.raises(InputError, match=flag):
-            extract_labelled_points(analytic.loaded, analytic.scene, num_points=kwargs.pop("num_points", 100),
+            extract_analytic(analytic.loaded, analytic.scene, num_points=kwargs.pop("num_points", 100),
                                     **kwargs)
 
 
@@ -600,7 +607,7 @@ def exported(analytic, tmp_path_factory) -> Path:
     out = tmp_path_factory.mktemp("export")
     export_run(analytic.root / "run", out, pointcloud=True, mesh=True, formats=("ply", "pcd", "label"),
                split_instances=True, resolution=64, loaded=analytic.loaded, scene=analytic.scene,
-               num_points=20000, command="pytest")
+               num_points=20000, command="pytest", view_surface=False)  # (see extract_analytic)
     return out
 
 
@@ -771,6 +778,7 @@ def test_failed_write_leaves_no_partial_file(analytic, tmp_path, monkeypatch):
     monkeypatch.setattr(atomic.os, "fsync", disk_full)
     with pytest.raises(InputError, match="points.ply"):
         export_run(analytic.root / "run", out, loaded=analytic.loaded, scene=analytic.scene, num_points=2000,
+                   view_surface=False,
                    formats=("ply", "pcd"))
     assert (out / "points.ply").read_bytes() == b"previous complete file"
     assert sorted(p.name for p in out.iterdir()) == ["points.ply"], "no temporary or partial files"

@@ -317,3 +317,28 @@ def test_instance_cleanup_folds_a_crumb_into_its_object():
     assert counts["crumbs_folded"] == 1 and (state.points.instance == 1).all()
     with pytest.raises(InputError, match="--crumb-points"):
         InstanceCleanup(crumb_points=-1).check()
+
+
+def test_view_surface_keeps_what_the_views_render_and_drops_what_they_see_through(monkeypatch):
+    import lift3d.export.steps.filters as filters
+    from lift3d.data.cameras import Cameras
+    from lift3d.export.steps import ViewSurface
+
+    # One camera at the origin looking down -z at a wall 2 units away (world = normalised / 2); its rendered
+    # depth: the wall, except a hole where no ray reached opacity 0.5.
+    cams = Cameras(c2w=np.eye(4)[None], fx=10.0, fy=10.0, cx=10.0, cy=10.0, width=20, height=20)
+    depth = np.full((20, 20), 2.0, np.float32)
+    depth[:, :5] = 0.0
+    monkeypatch.setattr(filters, "view_depths", lambda scene, frames, render, own_depth: {0: (depth, 1)})
+    monkeypatch.setattr(filters, "rendered_depth", lambda loaded, scene, cache: None)
+    monkeypatch.setattr(filters, "train_frames", lambda scene: np.array([0]))
+    on_wall, behind, in_front, in_hole = [0.0, 0.0, -2.0], [0.0, 0.0, -2.6], [0.0, 0.0, -1.2], [-1.4, 0.0, -2.5]
+    world = np.array([on_wall, behind, in_front, in_hole])
+    pts = _labelled(world * SCALE, [1, 1, 1, 1])  # still in normalised coordinates
+    pts = dataclasses.replace(pts, frame="normalized")
+    state = PointState(pts)
+    ctx = _context(cameras=cams)  # grid_link 0.1 normalised: a voxel is 0.05 normalised, 0.025 world
+    counts = ViewSurface(tolerance_voxels=4.0).apply(state, ctx)  # within 0.1 world units of the wall
+    assert counts["removed"] == 2 and counts["tolerance"] == pytest.approx(0.1)
+    np.testing.assert_allclose(state.points.xyz / SCALE, [on_wall, in_hole])  # the hole: nothing says it is wrong
+    assert ViewSurface().skip(PointState(pts), _context(source="tsdf")) == "the tsdf source draws the views' surfaces already"

@@ -224,7 +224,10 @@ def test_training_triangulates_at_the_start_caches_and_records_it(tmp_path):
     res = train(tmp_path / "plane", preset="fast", output_dir=tmp_path / "runs", overrides=TINY, progress=False,
                 print_summary=False)
     info = res.summary["image_depth"]
-    assert info["source"] == "planes" and "fit-planes" in [s["name"] for s in info["steps"]]
+    # one textured plane is no room: auto is the plane sweep, which assumes nothing of the scene
+    profile = yaml.safe_load((res.run.path / "config.yml").read_text())["scene"]["profile"]
+    assert "room" not in profile["premises"], profile
+    assert info["source"] == "dense" and "plane-sweep" in [s["name"] for s in info["steps"]]
     assert info["points_from"] == "triangulated"
     assert info["points"] > 50 and info["targets"] > 100 and info["median_error_px"] < 1.0
     assert res.summary["inputs"] == "RGB + SfM points"

@@ -10,12 +10,12 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from lift3d.data.cameras import opencv_to_opengl
+from lift3d.data.cameras import Cameras, opencv_to_opengl
 from lift3d.data.scene import load_scene
 from lift3d.errors import InputError
 from lift3d.model.normalization import ContentPoints, content_box, infer_normalization, share_outside
 from lift3d.sfm.pose_check import FIXES, check_pose_convention, with_fix
-from lift3d.train.scene_space import box_warnings, check_poses, scene_content
+from lift3d.train.scene_space import SceneGeometry, box_warnings, check_poses, scene_content
 
 
 @pytest.fixture(scope="module")
@@ -60,14 +60,21 @@ def test_box_from_triangulated_points_when_there_is_no_depth(room, tmp_path):
     from lift3d.model.config import load_config
 
     scene = load_scene(_without_scene_box(room, tmp_path / "nodepth", depth=False))
-    content, sparse = scene_content(scene, load_config("fast", "indoor", None))
+    geometry = scene_content(scene, load_config("fast", "indoor", None))
+    content, sparse = geometry.content, geometry.sparse
     assert sparse is not None and len(sparse) > 50 and content.source.startswith("points triangulated")
+    # a room: the plane sweep's depths join the points (the training will use them), one map per training frame
+    assert geometry.dense is not None and len(geometry.dense.depth) == len(scene.split("train"))
+    assert len(content.xyz) > 10 * len(sparse)
     norm, why = infer_normalization(scene, content=content)
     assert norm.bounded and why.startswith("points triangulated")
     assert share_outside(norm.aabb_world, scene.gt_points()["xyz"]) < 0.05
     # with depth targets off, nothing is triangulated just to size the space
     off = load_config("fast", "indoor", {"losses": {"image_depth": 0.0}})
-    assert scene_content(scene, off) == (None, None)
+    assert scene_content(scene, off) == SceneGeometry()
+    # a source that does not sweep: the sparse points alone
+    sparse_only = scene_content(scene, load_config("fast", "indoor", {"image_depth": {"source": "sparse"}}))
+    assert sparse_only.dense is None and len(sparse_only.content.xyz) == len(sparse)
 
 
 def test_content_that_reaches_far_is_unbounded():
@@ -130,3 +137,64 @@ def test_training_stops_on_inverted_poses_with_one_line(room, tmp_path):
     assert "transforms.json" in text and "world-to-camera" in text and "fix: invert each" in text
     assert "\n" not in text
     assert check_poses(load_scene(room))["likely_fix"] is None
+
+
+# --------------------------------------------------------------------------------------- the scene's profile
+def test_a_box_room_is_a_manhattan_room_that_fills_its_box(room, tmp_path):
+    from lift3d.model.normalization import depth_content
+    from lift3d.train.profile import choose_profile
+
+    scene = load_scene(room)
+    norm, _ = infer_normalization(scene)
+    choice = choose_profile(scene, norm, depth_content(scene))
+    assert choice.name == "manhattan-room" and choice.premises == ["box", "manhattan", "room"], choice.why
+    ev = choice.evidence
+    assert ev["floor"] and ev["walls"] >= 3 and ev["manhattan"] > 0.9 and ev["box_faces"] > 0.8
+    # without a scene box the room is the same room, but no box says where its walls are
+    nobox = load_scene(_without_scene_box(room, tmp_path / "nobox"))
+    choice = choose_profile(nobox, infer_normalization(nobox)[0], depth_content(nobox))
+    assert choice.name == "manhattan-room" and "box" not in choice.premises and "no scene_box" in choice.why
+    # the user's word wins, and is recorded as such
+    forced = choose_profile(scene, norm, depth_content(scene), override="open")
+    assert forced.name == "open" and forced.premises == [] and forced.why.startswith("--profile open")
+    with pytest.raises(InputError, match="--profile"):
+        choose_profile(scene, norm, depth_content(scene), override="street")
+
+
+def test_a_capture_around_an_object_and_an_unbounded_street():
+    from types import SimpleNamespace as NS
+
+    from lift3d.data.cameras import look_at
+    from lift3d.model.normalization import SceneNormalization
+    from lift3d.train.profile import choose_profile, cameras_up
+
+    rng = np.random.default_rng(0)
+    # a statue 0.6 m wide on a small plinth, photographed from a ring of cameras 2 m away
+    statue = rng.normal([0, 0, 0.8], [0.15, 0.15, 0.3], (4000, 3))
+    eyes = [[2 * np.cos(a), 2 * np.sin(a), 1.2] for a in np.linspace(0, 2 * np.pi, 24, endpoint=False)]
+    c2w = np.stack([look_at(np.array(e), np.array([0.0, 0.0, 0.8])) for e in eyes])
+    assert np.allclose(cameras_up(c2w), [0, 0, 1], atol=1e-6)
+    cams = Cameras(c2w=c2w, fx=50.0, fy=50.0, cx=32.0, cy=32.0, width=64, height=64)
+    scene = NS(cameras=cams, categories=[], scene_box=None, has_pseudo_labels=False, split=lambda s: np.arange(24))
+    norm = SceneNormalization(np.zeros(3), 1.0, True, np.array([[-1, -1, 0], [1, 1, 2.0]]))
+    choice = choose_profile(scene, norm, ContentPoints(statue, "points"))
+    assert choice.name == "object" and choice.premises == [], choice.why
+    outdoor = choose_profile(scene, SceneNormalization(np.zeros(3), 1.0, False, norm.aabb_world),
+                             ContentPoints(statue, "points"))
+    assert outdoor.name == "outdoor" and "unbounded" in outdoor.why
+
+
+def test_training_records_the_profile_and_its_premises_reach_the_depth_targets(room, tmp_path):
+    from lift3d.model.config import load_yaml
+    from lift3d.train.trainer import train
+
+    scene_dir = _without_scene_box(room, tmp_path / "images_only", depth=False)
+    result = train(scene_dir, preset="fast", output_dir=tmp_path / "runs", progress=False, print_summary=False,
+                   overrides={"optim": {"steps": 2}, "losses": {"feature": 0.0},
+                              "field": {"grid": {"resolution_cap": 16}}, "data": {"rays_per_image": 16, "patch_size": 0},
+                              "trainer": {"eval_every": 0, "eval_images": 0, "checkpoint_every": 0}})
+    saved = load_yaml(result.run.config_path)["scene"]
+    profile, targets = saved["profile"], saved["image_depth"]
+    assert profile["name"] in ("manhattan-room", "room") and "box" not in profile["premises"], profile
+    assert targets["premises"] == sorted(profile["premises"]) and targets["source"] == "planes"
+    assert saved["pose_check"]["likely_fix"] is None and saved["why_bounded"].startswith("points triangulated")

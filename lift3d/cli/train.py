@@ -51,6 +51,9 @@ def add_parser(subparsers, verb: str) -> argparse.ArgumentParser:
     p.add_argument("--resume", metavar="RUN", help="continue a run folder from its newest checkpoint")
     p.add_argument("--steps", type=int, metavar="N", help="shortcut for --optim.steps")
     p.add_argument("--seed", type=int, metavar="N", help="shortcut for --trainer.seed")
+    p.add_argument("--profile", metavar="NAME",
+                   help="shortcut for --data.profile: auto (decided from the scene), manhattan-room, room, open, "
+                        "outdoor or object")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     add_config_flags(p)
     p.set_defaults(func=run)
@@ -67,6 +70,8 @@ def run(args: argparse.Namespace) -> int:
         overrides.setdefault("optim", {})["steps"] = args.steps
     if args.seed is not None:
         overrides.setdefault("trainer", {})["seed"] = args.seed
+    if args.profile is not None:
+        overrides.setdefault("data", {})["profile"] = args.profile
     if args.device is not None:
         overrides.setdefault("trainer", {})["device"] = args.device
     if args.data is None and args.resume is None:

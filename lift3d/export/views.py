@@ -30,6 +30,7 @@ import time
 from dataclasses import dataclass
 from typing import Any, Callable
 
+import cv2
 import numpy as np
 from scipy.spatial import cKDTree
 
@@ -56,16 +57,17 @@ VOTE_MAX_POINTS = 250_000
 
 
 def view_depths(scene: Scene, frames, render: Callable[[int, int], np.ndarray] | None,
-                max_rays: int = VOTE_MAX_RAYS) -> dict[int, tuple[np.ndarray, int]]:
+                max_rays: int = VOTE_MAX_RAYS, own_depth: bool = True) -> dict[int, tuple[np.ndarray, int]]:
     """Depth (world units, 0 = unknown) of each view in ``frames`` and the downscale it is at.
 
-    A view's own depth map is used as it is; views without one are rendered by ``render(i, downscale)``
-    (``None``: such views do not vote), all at one downscale that keeps their rays under ``max_rays``.
+    A view's own depth map is used as it is (unless ``own_depth`` is False); the other views are rendered by
+    ``render(i, downscale)`` (``None``: they are left out), all at one downscale that keeps their rays under
+    ``max_rays``.
     """
     out: dict[int, tuple[np.ndarray, int]] = {}
     missing = []
     for i in frames:
-        d = scene.depth(int(i))
+        d = scene.depth(int(i)) if own_depth else None
         if d is None:
             missing.append(int(i))
         else:
@@ -118,6 +120,50 @@ def view_label_counts(xyz: np.ndarray, scene: Scene, depths: dict[int, tuple[np.
         ok = (label > 0) & (label < len(lut)) & (col >= 0)
         counts[k[seen][ok], col[ok]] += np.uint16(1)  # one vote per view and point: no repeated indices
     return counts
+
+
+def views_on_surface(xyz: np.ndarray, scene: Scene, depths: dict[int, tuple[np.ndarray, int]],
+                     tolerance: float) -> tuple[np.ndarray, np.ndarray]:
+    """``int [N]`` each: how many views' surfaces pass through each point, and how many views have a surface
+    (a depth) at the point's pixel at all. A view's surface passes through a point that lands in its image, in
+    front of it, within ``tolerance`` (world units) of the depths the view has around that pixel (its 3 × 3
+    neighbours' range: a surface seen at a grazing angle spans many depths within one pixel) (:func:`view_depths`).
+
+    Examples
+    --------
+    One view looking down -z at a wall 2 units away: a point on the wall is on its surface; one 0.5 behind it
+    is not.
+
+    >>> from lift3d.data.cameras import Cameras
+    >>> cams = Cameras(c2w=np.eye(4)[None], fx=10.0, fy=10.0, cx=10.0, cy=10.0, width=20, height=20)
+    >>> class S: cameras = cams
+    >>> xyz = np.array([[0.0, 0.0, -2.0], [0.0, 0.0, -2.5]])
+    >>> on, covered = views_on_surface(xyz, S(), {0: (np.full((20, 20), 2.0), 1)}, tolerance=0.1)
+    >>> on.tolist(), covered.tolist()
+    ([1, 0], [1, 1])
+    """
+    xyz = np.asarray(xyz, np.float64)
+    count = np.zeros(len(xyz), np.int64)
+    covered = np.zeros(len(xyz), np.int64)
+    cams = scene.cameras
+    kernel = np.ones((3, 3), np.uint8)
+    for i, (depth, ds) in depths.items():
+        depth = np.asarray(depth, np.float32)
+        valid = depth > 0
+        low = cv2.erode(np.where(valid, depth, np.inf).astype(np.float32), kernel)
+        high = cv2.dilate(np.where(valid, depth, 0.0).astype(np.float32), kernel)
+        h, w = int(cams.height[i]), int(cams.width[i])
+        uv, z = cams.project(i, xyz)
+        with np.errstate(invalid="ignore"):
+            k = np.flatnonzero((z > 0) & (uv[:, 0] >= 0) & (uv[:, 0] < w) & (uv[:, 1] >= 0) & (uv[:, 1] < h))
+        dh, dw = depth.shape
+        r = np.minimum(uv[k, 1].astype(np.int64) // ds, dh - 1)
+        c = np.minimum(uv[k, 0].astype(np.int64) // ds, dw - 1)
+        has = valid[r, c]
+        on = has & (z[k] >= low[r, c] - tolerance) & (z[k] <= high[r, c] + tolerance)
+        count[k[on]] += 1
+        covered[k[has]] += 1
+    return count, covered
 
 
 def vote_labels(semantic: np.ndarray, counts: np.ndarray, class_ids: np.ndarray, *, min_views: int = VOTE_MIN_VIEWS,

@@ -65,6 +65,10 @@ class DataConfig:
     multiple of 8 (lift3d.train.scene_sizes)."""
     max_instance_channels: int = 128
     """Upper bound on the derived number of instance channels V."""
+    profile: str = "auto"
+    """Which kind of scene this is, and so which priors may run (docs/presets.md, "Scene profiles"): ``auto``
+    decides from what the scene shows (lift3d.train.profile), or one of ``manhattan-room``, ``room``, ``open``,
+    ``outdoor``, ``object``. Recorded in config.yml with the evidence (``scene.profile``)."""
 
     @property
     def rays_per_step(self) -> int:

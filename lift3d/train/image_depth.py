@@ -23,6 +23,7 @@ nothing.
 
 from __future__ import annotations
 
+import dataclasses
 import io
 import json
 import time
@@ -37,6 +38,7 @@ from lift3d.data.stereo import DenseDepth, SparsePoints, read_sparse_points, wri
 from lift3d.errors import InputError
 from lift3d.model.config import ImageDepthConfig
 from lift3d.model.profiles import PROFILES
+from lift3d.train.profile import premises_from_planes
 from lift3d.utils.atomic import write_bytes_atomic
 from lift3d.utils.steps import run_steps
 
@@ -116,23 +118,30 @@ def shown_premises(scene: Scene | None, premises: Iterable[str] | None = None) -
     return shown if is_bounded(scene) else shown - {"box"}
 
 
-def auto_source(scene: Scene | None, premises: Iterable[str] | None = None) -> str:
-    """What ``image_depth.source auto`` is: the source measured best (docs/sfm.md, "Training with it"),
-    ``planes`` in a bounded scene (rooms: measured there), ``sparse`` otherwise (the planes are not measured
-    outdoors yet). ``premises`` does not change it yet: the one place to make ``auto`` follow the profile."""
-    return "planes" if is_bounded(scene) else "sparse"
+def auto_source(scene: Scene | None, premises: Iterable[str] | None = None, profile: str | None = None) -> str:
+    """What ``image_depth.source auto`` is. With the scene's profile (:mod:`lift3d.train.profile`): ``planes``
+    where the room premise holds (the stuff planes and the room rules: measured on rooms), ``sparse`` outdoors
+    (the plane sweep is not measured there), ``dense`` elsewhere (plane-sweep stereo assumes nothing of the
+    scene). Without one (callers from before profiles): ``planes`` in a bounded scene box, ``sparse`` otherwise."""
+    if profile is None:
+        return "planes" if is_bounded(scene) else "sparse"
+    if "room" in set(premises or ()):
+        return "planes"
+    return "sparse" if profile == "outdoor" else "dense"
 
 
-def resolve_source(source: str, scene: Scene | None = None, premises: Iterable[str] | None = None) -> str:
+def resolve_source(source: str, scene: Scene | None = None, premises: Iterable[str] | None = None,
+                   profile: str | None = None) -> str:
     """``source``, with ``auto`` resolved by :func:`auto_source`; an unknown source is an :class:`InputError`."""
     if source not in SOURCES:
         raise InputError("--image_depth.source", f"unknown source {source!r} ({', '.join(SOURCES)})")
-    return auto_source(scene, premises) if source == "auto" else source
+    return auto_source(scene, premises, profile) if source == "auto" else source
 
 
 def image_depth_targets(scene: Scene, frames: np.ndarray, cfg: ImageDepthConfig, cache: Path | None = None,
                         progress: bool = False, premises: Iterable[str] | None = None,
-                        sparse: SparsePoints | None = None) -> DepthTargets:
+                        sparse: SparsePoints | None = None, profile: str | None = None,
+                        dense: DenseDepth | None = None, refine_room: bool = False) -> DepthTargets:
     """Depth targets for the frames of ``frames`` that have no depth map.
 
     Parameters
@@ -151,6 +160,15 @@ def image_depth_targets(scene: Scene, frames: np.ndarray, cfg: ImageDepthConfig,
         Points the caller has already (:func:`scene_sparse_points`: the scene space is sized from them before
         training), observations indexing the scene's frames by name: used instead of the scene's, the cached or
         newly triangulated ones, and written to ``cache``.
+    profile : str, optional
+        The scene's profile, for what ``auto`` means (:func:`auto_source`).
+    dense : DenseDepth, optional
+        Plane-sweep maps of ``frames`` the caller computed already (:func:`scene_dense_maps`), used instead of
+        the scene's, the cached or newly computed ones, and written to ``cache``.
+    refine_room : bool
+        In a room (``premises`` hold ``room``), decide ``manhattan`` and ``box`` again from the stuff planes once
+        they are fitted with the labels' wall feet (:func:`lift3d.train.profile.premises_from_planes`); the
+        result is in ``info["premises"]`` and ``info["room_evidence"]``.
 
     Returns
     -------
@@ -158,7 +176,7 @@ def image_depth_targets(scene: Scene, frames: np.ndarray, cfg: ImageDepthConfig,
         Possibly empty (source ``none``, every frame has a depth map, nothing could be triangulated).
     """
     shown = shown_premises(scene, premises)
-    source = resolve_source(cfg.source, scene, shown)
+    source = resolve_source(cfg.source, scene, shown, profile)
     targets_for = frames_without_depth(scene, frames)
     info: dict[str, Any] = {"source": source, "requested": cfg.source, "premises": sorted(shown), "warnings": []}
     if source == "none" or len(targets_for) == 0:
@@ -174,7 +192,7 @@ def image_depth_targets(scene: Scene, frames: np.ndarray, cfg: ImageDepthConfig,
         info["warnings"] += list(points.info.get("warnings", []))
     dense = labels = None
     if source in ("dense", "planes"):
-        dense, info["dense_from"] = _dense_maps(scene, frames, points, cache, progress)
+        dense, info["dense_from"] = scene_dense_maps(scene, frames, points, cache, progress, dense)
     if source == "planes":
         labels = {int(i): scene.pseudo_labels(int(i)).semantic for i in frames}  # read once for every step
     # here, not at module level: keeps `import lift3d.train` cheap (the steps use lift3d.sfm, which loads OpenCV)
@@ -183,7 +201,16 @@ def image_depth_targets(scene: Scene, frames: np.ndarray, cfg: ImageDepthConfig,
     context = TargetContext(scene, np.asarray(frames), targets_for, points, dense, labels, shown,
                             PlaneSettings.from_config(cfg))
     state = TargetState()
-    records = run_steps(target_steps(source, cfg), state, context, shown)
+    steps = target_steps(source, cfg)
+    # A room's square walls and whether its box is the room: the content before training may not show them
+    # (plain walls give stereo next to nothing); the stuff planes fitted with the labels' wall feet do.
+    split = next((k + 1 for k, step in enumerate(steps) if step.name == "floor-boundary"), len(steps))
+    records = run_steps(steps[:split], state, context, shown)
+    if refine_room and "room" in shown and state.has_planes():
+        shown, info["room_evidence"] = _room_premises(scene, state)
+        context = dataclasses.replace(context, premises=shown)
+        info["premises"] = sorted(shown)
+    records += run_steps(steps[split:], state, context, shown)
     info["steps"] = [r.to_json() for r in records]
     empty = DepthTargets.empty()
     rows = state.rows or [(empty.frame, empty.u, empty.v, empty.z, empty.sigma, empty.dense)]
@@ -201,6 +228,14 @@ def image_depth_targets(scene: Scene, frames: np.ndarray, cfg: ImageDepthConfig,
             "or baseline for depth from the images; training relies on the colours" +
             (" alone" if len(targets) == 0 else " mostly"))
     return targets
+
+
+def _room_premises(scene: Scene, state) -> tuple[frozenset[str], dict[str, Any]]:
+    """The room's premises from the stuff planes fitted so far (:func:`lift3d.train.profile.premises_from_planes`)."""
+    up = state.floor[1] if state.floor is not None else state.up
+    box = np.asarray(scene.scene_box.aabb, float) if is_bounded(scene) else None
+    premises, evidence = premises_from_planes(state.planes, np.asarray(up, float), box)
+    return premises, evidence
 
 
 def flat_info(info: dict[str, Any] | None) -> dict[str, Any] | None:
@@ -280,16 +315,25 @@ def _scene_points_source(scene: Scene) -> str:
 
 
 # ------------------------------------------------------------------------------------------ dense maps
-def _dense_maps(scene: Scene, frames: np.ndarray, sparse: SparsePoints, cache: Path | None,
-                progress: bool) -> tuple[DenseDepth, str]:
+def scene_dense_maps(scene: Scene, frames: np.ndarray, sparse: SparsePoints, cache: Path | None, progress: bool,
+                     given: DenseDepth | None = None) -> tuple[DenseDepth, str]:
+    """Plane-sweep depth maps of ``frames``: ``given`` (written to the cache), else the scene's
+    (``mvs_depth_file_path``), else the cached ones, else computed now from the images (and cached); and where they
+    came from."""
     names = [scene.frames[int(i)].name for i in frames]
+    path = None if cache is None else cache / "mvs.npz"
+    if given is not None:
+        if list(given.frame_names) != names:
+            raise InputError("plane-sweep maps", "given for other frames than the training frames")
+        if path is not None and given.support is not None:
+            _write_dense_cache(path, names, given)
+        return given, str(given.info.get("origin", "given by the caller"))
     if all(scene.frames[int(i)].mvs_depth_path is not None for i in frames):
         maps = [scene.mvs_depth(int(i)) for i in frames]
         supports = [scene.mvs_support(int(i)) for i in frames]
         return DenseDepth(names, [m[0] for m in maps], [m[1] for m in maps],
                           support=supports if all(n is not None for n in supports) else None), \
             "scene (mvs_depth_file_path)"
-    path = None if cache is None else cache / "mvs.npz"
     if path is not None and path.is_file():
         with np.load(path, allow_pickle=False) as z:
             if [str(n) for n in z["names"]] == names:
@@ -301,9 +345,14 @@ def _dense_maps(scene: Scene, frames: np.ndarray, sparse: SparsePoints, cache: P
     from lift3d.sfm import plane_sweep_scene
 
     dense = plane_sweep_scene(scene, frames, sparse=sparse, progress=progress)
+    dense.info["origin"] = "plane sweep"
     if path is not None:
-        buf = io.BytesIO()
-        np.savez_compressed(buf, names=np.asarray(names, dtype=str), depth=np.stack(dense.depth),
-                            sigma=np.stack(dense.sigma), support=np.stack(dense.support))
-        write_bytes_atomic(path, buf.getvalue())
+        _write_dense_cache(path, names, dense)
     return dense, "plane sweep"
+
+
+def _write_dense_cache(path: Path, names: list[str], dense: DenseDepth) -> None:
+    buf = io.BytesIO()
+    np.savez_compressed(buf, names=np.asarray(names, dtype=str), depth=np.stack(dense.depth),
+                        sigma=np.stack(dense.sigma), support=np.stack(dense.support))
+    write_bytes_atomic(path, buf.getvalue())

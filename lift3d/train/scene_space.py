@@ -10,19 +10,40 @@ handed on (:func:`lift3d.train.image_depth.image_depth_targets`'s ``sparse``). A
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
 from lift3d.data.scene import Scene
-from lift3d.data.stereo import SparsePoints
+from lift3d.data.stereo import DenseDepth, SparsePoints
 from lift3d.model.config import Config
-from lift3d.model.normalization import OUTSIDE_WARNING, ContentPoints, depth_content, share_outside
+from lift3d.model.normalization import OUTSIDE_WARNING, ContentPoints, content_box, depth_content, share_outside
 from lift3d.errors import InputError
-from lift3d.train.image_depth import frames_without_depth, resolve_source, scene_sparse_points
+from lift3d.train.image_depth import frames_without_depth, scene_dense_maps, scene_sparse_points
+from lift3d.train.profile import OUTDOOR_SHARE, outdoor_label_share
 
 
-def scene_content(scene: Scene, cfg: Config, progress: bool = False
-                  ) -> tuple[ContentPoints | None, SparsePoints | None]:
-    """The points that say where the scene is, and the sparse points behind them when there are any.
+@dataclass
+class SceneGeometry:
+    """What the images say of the scene's surfaces before training: where they are (``content``) and the sparse
+    points and plane-sweep maps behind that, handed on to the depth targets so they are computed once."""
+
+    content: ContentPoints | None = None
+    sparse: SparsePoints | None = None
+    dense: DenseDepth | None = None
+
+
+#: Every this-many-th pixel of a plane-sweep map becomes a content point (a map of 128² holds ~10 000 depths).
+DENSE_STRIDE = 2
+
+
+def scene_content(scene: Scene, cfg: Config, progress: bool = False) -> SceneGeometry:
+    """The points that say where the scene is, and the sparse points and plane-sweep maps behind them.
+
+    Depth maps when every frame has one; else the scene's sparse points or points triangulated now from the
+    training frames, with the plane sweep's depths when the run will use them (source ``dense`` or ``planes``,
+    or ``auto`` in a scene that does not look outdoor: :func:`looks_outdoor`). The sweep's depths reach the
+    plain walls that sparse points miss, so the space and the profile see them.
 
     Parameters
     ----------
@@ -31,27 +52,41 @@ def scene_content(scene: Scene, cfg: Config, progress: bool = False
         The run's settings: points are triangulated here only when the run would triangulate anyway (depth
         targets from the images on, training frames without a depth map, a source other than ``none``).
     progress : bool
-
-    Returns
-    -------
-    content : ContentPoints or None
-        None when the scene has neither depth maps nor sparse points and the run does not triangulate.
-    sparse : SparsePoints or None
-        Sparse points (the scene's or triangulated here), to hand to the depth targets.
     """
     depth = depth_content(scene)
     if depth is not None:
-        return depth, None
+        return SceneGeometry(depth)
     train = scene.split("train")
     wants_points = (cfg.losses.image_depth > 0 and len(frames_without_depth(scene, train)) > 0
-                    and resolve_source(cfg.image_depth.source, scene) != "none")
+                    and cfg.image_depth.source != "none")
     if scene.sparse_points_paths is None and not wants_points:
-        return None, None
+        return SceneGeometry()
     sparse, origin = scene_sparse_points(scene, train, cache=None, progress=progress)
     if not len(sparse):
-        return None, sparse
+        return SceneGeometry(None, sparse)
     source = "points triangulated from the training images" if origin == "triangulated" else f"sparse points, {origin}"
-    return ContentPoints(np.asarray(sparse.xyz, np.float64), source), sparse
+    content = ContentPoints(np.asarray(sparse.xyz, np.float64), source)
+    requested = cfg.image_depth.source
+    if not wants_points or requested == "sparse" or (requested == "auto" and looks_outdoor(scene, content)):
+        return SceneGeometry(content, sparse)
+    dense, _ = scene_dense_maps(scene, train, sparse, cache=None, progress=progress)
+    index = {f.name: k for k, f in enumerate(scene.frames)}
+    xyz = [content.xyz] + [_map_points(scene, index[name], d) for name, d in zip(dense.frame_names, dense.depth)]
+    return SceneGeometry(ContentPoints(np.concatenate(xyz), source + " and their plane-sweep depths"), sparse, dense)
+
+
+def looks_outdoor(scene: Scene, content: ContentPoints) -> bool:
+    """Whether the labels or the sparse points already say outdoors (:mod:`lift3d.train.profile`'s first two
+    rules), where ``auto`` uses sparse points alone and no plane sweep is wanted."""
+    cams = scene.cameras.centers[scene.split("train")]
+    return (not content_box(content, cams)[1]
+            or outdoor_label_share(scene, scene.split("train")) > OUTDOOR_SHARE)
+
+
+def _map_points(scene: Scene, i: int, depth: np.ndarray) -> np.ndarray:
+    d = np.asarray(depth)[::DENSE_STRIDE, ::DENSE_STRIDE]
+    rows, cols = np.nonzero(d > 0)
+    return scene.cameras.unproject(i, cols * DENSE_STRIDE, rows * DENSE_STRIDE, d[rows, cols])
 
 
 #: Content within this fraction of the diagonal outside a given ``scene_box`` is on its faces, not cut off.

@@ -22,7 +22,6 @@ from torch.profiler import record_function
 
 from lift3d import __version__
 from lift3d.data.scene import Scene, load_scene
-from lift3d.data.stereo import SparsePoints
 from lift3d.errors import InputError, TrainingDiverged
 from lift3d.eval.evaluate import compute_2d_metrics, gt_labels, json_safe, pseudo_labels, render_split
 from lift3d.eval.frame_metrics import frame_psnrs
@@ -44,7 +43,8 @@ from lift3d.train.image_depth import flat_info, frames_without_depth, image_dept
 from lift3d.train.distributed import DistContext, all_ranks_agree, broadcast_object, init_distributed, shutdown
 from lift3d.train.observed import observed_cells
 from lift3d.train.scene_sizes import instance_capacity, label_resolution
-from lift3d.train.scene_space import box_warnings, check_poses, scene_content
+from lift3d.train.profile import choose_profile, refined_profile
+from lift3d.train.scene_space import SceneGeometry, box_warnings, check_poses, scene_content
 from lift3d.utils.device import available_cpus, resolve_device, set_threads
 from lift3d.utils.threads import threads_from_environment
 from lift3d.utils.memory import peak_rss_mb
@@ -180,7 +180,7 @@ class Trainer:
 
     def __init__(self, scene: Scene, cfg: Config, norm: SceneNormalization, run: RunFolder,
                  device: torch.device, progress: bool = True, labels: LabelSpace | None = None,
-                 dist_ctx: DistContext | None = None, sparse: SparsePoints | None = None):
+                 dist_ctx: DistContext | None = None, geometry: SceneGeometry | None = None):
         self.scene, self.cfg, self.norm, self.run, self.device = scene, cfg, norm, run, device
         self.ctx = dist_ctx or DistContext()
         self.progress = progress and self.ctx.is_main
@@ -188,9 +188,15 @@ class Trainer:
         targets = None
         if cfg.losses.image_depth > 0:
             # A resumed run reads the points it triangulated from its own folder (cached at the first start).
+            profile = cfg.scene.get("profile") or {}
             targets = image_depth_targets(scene, scene.split("train"), cfg.image_depth, cache=run.path / IMAGE_DEPTH_CACHE,
-                                          progress=self.progress, sparse=sparse)
+                                          progress=self.progress, premises=profile.get("premises"),
+                                          profile=profile.get("name"), refine_room=cfg.data.profile == "auto",
+                                          sparse=geometry.sparse if geometry else None,
+                                          dense=geometry.dense if geometry else None)
             cfg.scene["image_depth"] = json_safe(targets.info)
+            if "room_evidence" in targets.info:  # the stuff planes said whether the room is square, fills its box
+                cfg.scene["profile"] = refined_profile(profile, targets.info["premises"], targets.info["room_evidence"])
         self.data = TrainingData(scene, scene.split("train"), self.rays, labels, progress=self.progress,
                                  depth_scale=norm.scale if cfg.losses.depth > 0 else None, targets=targets,
                                  target_scale=norm.scale, target_sigma_scale=cfg.image_depth.sigma_scale,
@@ -499,7 +505,7 @@ def _labelled_scene(data) -> Scene:
 
 def _train(data, preset, output_dir, overrides, resume, progress, print_summary, ctx: DistContext,
            device_name: str) -> TrainResult:
-    sparse = None
+    geometry = None
     if resume is not None:
         run = RunFolder.open(resume)
         cfg = config_from_dict(load_yaml(run.config_path), str(run.config_path))
@@ -517,9 +523,12 @@ def _train(data, preset, output_dir, overrides, resume, progress, print_summary,
         pose_check = check_poses(scene)  # a pose file read with the wrong convention stops here, in one line
         # The points that say where the surfaces are size the scene space; triangulated ones are the depth
         # targets' starting points too (handed on below, not computed twice).
-        content, sparse = scene_content(scene, load_config(preset, "indoor", overrides), progress and ctx.is_main)
+        geometry = scene_content(scene, load_config(preset, "indoor", overrides), progress and ctx.is_main)
+        content = geometry.content
         cfg, norm = resolve_config(scene, preset, overrides, content)
         cfg.scene["pose_check"] = pose_check
+        # Which priors may run: from what the scene shows (or --profile), with the evidence, in config.yml.
+        cfg.scene["profile"] = choose_profile(scene, norm, content, cfg.data.profile).to_json()
         resolve_device(device_name if ctx.enabled else cfg.trainer.device)  # a bad --device leaves no empty run
         # One run folder for the whole job: rank 0 makes it, the others are told where it is.
         run_path = RunFolder.create(output_dir, scene.name, cfg.preset).path if ctx.is_main else None
@@ -535,7 +544,7 @@ def _train(data, preset, output_dir, overrides, resume, progress, print_summary,
     labels = LabelSpace.from_dict(cfg.scene["labels"]) if resume is not None and "labels" in cfg.scene else None
     try:
         trainer = Trainer(scene, cfg, norm, run, device, progress=progress, labels=labels, dist_ctx=ctx,
-                          sparse=sparse)
+                          geometry=geometry)
     except BaseException:
         if resume is None and ctx.is_main:
             _remove_if_empty(run.path, keep_below=Path(output_dir))  # e.g. a corrupt frame: no empty run left
@@ -619,6 +628,8 @@ def format_summary(result: TrainResult, cfg: Config) -> str:
         f"{', depth-supervised' if cfg.scene.get('depth_supervision') else ''}",
     ]
     lines.append(f"  scene space    {cfg.scene.get('why_bounded', '')}")
+    if cfg.scene.get("profile"):
+        lines.append(f"  profile        {cfg.scene['profile']['name']} ({cfg.scene['profile']['why']})")
     lines += [f"  warning        {w}" for w in cfg.scene.get("scene_space_warnings", [])]
     if cfg.scene.get("pose_check", {}).get("warning"):
         lines.append(f"  warning        {cfg.scene['pose_check']['warning']}")

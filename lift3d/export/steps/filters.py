@@ -1,5 +1,5 @@
-"""Steps that keep a subset of the points or move them all: the confidence filter, the output frame, the crop box,
-outlier removal and voxel down-sampling."""
+"""Steps that keep a subset of the points or move them all: the views' surface, the confidence filter, the output
+frame, the crop box, outlier removal and voxel down-sampling."""
 
 from __future__ import annotations
 
@@ -14,6 +14,49 @@ from lift3d.export.frames import check_frame, to_frame
 from lift3d.export.instances import voxel_downsample_majority
 from lift3d.export.points import OrientedBox
 from lift3d.export.steps.base import ExportStep, PointState, StepContext
+from lift3d.export.views import rendered_depth, view_depths, views_on_surface
+from lift3d.export.visibility import train_frames
+
+
+@dataclass
+class ViewSurface(ExportStep):
+    """Only the isosurface the training views render stays: a point goes when views render a surface at its pixel
+    (the field's depth where a ray's opacity reaches 0.5) and fewer than ``min_views`` of those surfaces pass
+    within ``tolerance_voxels`` isosurface voxels of it. The density isosurface also holds what no view renders:
+    surface behind the one a view sees (a field that is not opaque at its first surface leaves density behind it,
+    and the isosurface's holes let the visibility test see it) and floaters the rays pass through. A point at
+    whose pixel no view renders an opaque surface stays: nothing says it is not there."""
+
+    name = "view-surface"
+    flags = {"enabled": "--no-view-surface"}
+    needs_points = True
+    tolerance_voxels: float = 1.0
+    """How far from a view's rendered depth a point may lie, in voxels of the isosurface grid (the field's finest
+    grid): the rendered depth and the isosurface of one good surface differ by about that much."""
+    min_views: int = 1
+    """Fewest views whose surface must pass through a point."""
+
+    def check(self) -> None:
+        if self.tolerance_voxels < 0 or self.min_views < 1:
+            raise InputError("--view-surface.*", "tolerance-voxels must be >= 0 and min-views >= 1")
+
+    def skip(self, state: PointState, context: StepContext) -> str | None:
+        if context.source != "surface":
+            return f"the {context.source} source draws the views' surfaces already"
+        return super().skip(state, context)
+
+    def apply(self, state: PointState, context: StepContext) -> dict:
+        scene, p = context.scene, state.points
+        depths = view_depths(scene, train_frames(scene), rendered_depth(context.loaded, scene, context.view_depth_cache),
+                             own_depth=False)
+        # grid_link is two isosurface voxels (normalised units)
+        tolerance = self.tolerance_voxels * 0.5 * context.grid_link / float(context.loaded.norm.scale)
+        views, covered = views_on_surface(context.world(p), scene, depths, tolerance)
+        keep = (views >= self.min_views) | (covered == 0)
+        state.points = p.take(keep)
+        downscale = next(iter(depths.values()))[1] if depths else 1
+        return {"removed": int((~keep).sum()), "views": len(depths), "downscale": int(downscale),
+                "tolerance": round(tolerance, 5), "median_views": float(np.median(views)) if len(views) else 0.0}
 
 
 @dataclass
