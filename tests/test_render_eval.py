@@ -709,3 +709,16 @@ def test_eval_without_3d_gt_scores_the_export_against_the_depth_maps(trained, tm
     assert 0.0 <= d["share_over_0.1"] <= 1.0 and d["mae_of_diagonal"] == pytest.approx(d["mae"] / d["diagonal"])
     table = format_eval_table(json_safe(m))
     assert "3D geometry" in table and "% of the diagonal" in table
+
+
+def test_eval_reports_3d_iou_per_class_and_the_smallest_objects(trained, evaluated):
+    p = evaluated["metrics"]["points3d"]
+    scene = load_scene(trained["scene"])
+    names = {c.name for c in scene.categories}
+    assert p["per_class"] and set(p["per_class"]) <= names and all(0 <= v <= 1 for v in p["per_class"].values())
+    gt = scene.gt_points()
+    things = np.isin(gt["semantic"], scene.thing_ids) & (gt["instance"] != 0)
+    assert len(p["objects"]) == len(np.unique(np.stack([gt["semantic"][things], gt["instance"][things]], 1), axis=0))
+    sizes = [o["size"] for o in p["objects"]]
+    assert sizes == sorted(sizes) and all(0 <= o["iou"] <= 1 and o["class"] in names for o in p["objects"])
+    assert "3D point IoU per class" in evaluated["stdout"] and "smallest" in evaluated["stdout"]

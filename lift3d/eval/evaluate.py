@@ -447,7 +447,19 @@ def points3d_block(loaded: LoadedRun, scene: Scene, num_points: int = 200_000, p
     on_thing = np.isin(gt_sem, list(scene.thing_ids)) & (gt_inst != 0)
     block["n_gt_objects"] = int(len(np.unique(np.stack([gt_sem[on_thing], gt_inst[on_thing]], 1), axis=0)))
     block.update(source=f"export.{pts.stats.get('source', source)}", num_points=int(num_points))
+    # Per class (strict: every class present) and per GT object with its size: a small thing lost does not move
+    # the mean much, but it is what a robot reaches for.
+    names = {c.id: c.name for c in scene.categories}
+    block["per_class"] = {names.get(c, str(c)): round(v, 4) for c, v in points3d_per_class(r).items()}
+    block["objects"] = [{**o, "class": names.get(o["class_id"], str(o["class_id"]))} for o in r["objects"]]
     return block
+
+
+def points3d_per_class(r: dict) -> dict[int, float]:
+    """Point IoU per class id (void left out) of a :func:`lift3d.eval.points3d.points3d` result: every class the
+    GT or the prediction has (the ``min_area`` filter drops classes from the mean only)."""
+    iou = np.asarray(r["miou_detail"]["per_class_iou"], float)
+    return {int(c): float(iou[c]) for c in range(1, len(iou)) if np.isfinite(iou[c])}
 
 
 def geometry_from_depth_block(points, scene: Scene, frames: Sequence[int]) -> dict:

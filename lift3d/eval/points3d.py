@@ -128,7 +128,8 @@ def points3d(
         instances with at least ``min_instance_points`` points that one
         predicted instance covers with point IoU > 0.5, class-agnostic; NaN
         when there is none) with ``n_instances`` (how many were scored), and
-        the full ``pq_detail`` / ``miou_detail`` dicts.  With an empty prediction: accuracy, completeness and chamfer
+        the full ``pq_detail`` / ``miou_detail`` dicts, ``objects`` (:func:`object_recovery`: per GT object its
+        size and best point IoU).  With an empty prediction: accuracy, completeness and chamfer
         are ``inf``; precision, recall, F-score, mIoU, PQ, SQ, RQ are 0 as
         long as the GT has a non-void class.
 
@@ -175,6 +176,7 @@ def points3d(
     mi_strict = _miou(t_sem, gs, min_area=0.0, void=0)
     pq_strict = _pq_scene(t_sem, t_inst, gs, gi, things_s, stuff_s, min_area=0.0, void=0)
     found, scored = instance_recall(t_inst, gs, gi, things_s, min_points=min_instance_points)
+    objects = object_recovery(gx, t_inst, gs, gi, things_s)
     return {
         "miou": mi["miou"],
         "pq": pq["pq"],
@@ -200,6 +202,7 @@ def points3d(
         "n_instances": scored,
         "pq_detail": pq,
         "miou_detail": mi,
+        "objects": objects,
     }
 
 
@@ -265,6 +268,39 @@ def instance_recall(pred_inst, gt_sem, gt_inst, things, min_points: int = 500) -
     found = np.zeros(len(keys), dtype=bool)
     found[pairs[hit, 0]] = True
     return int((found & big).sum()), int(big.sum())
+
+
+def object_recovery(gt_xyz, pred_inst, gt_sem, gt_inst, things) -> list[dict]:
+    """Per GT thing instance: its class, GT point count, size (the largest side of its points' axis-aligned
+    box, world units) and the best point IoU any one predicted instance reaches on it (as
+    :func:`instance_recall` measures it; 0 when none overlaps). Sorted by size, smallest first.
+
+    Examples
+    --------
+    >>> xyz = np.array([[0, 0, 0], [0.1, 0, 0], [0.2, 0, 0], [5, 5, 5], [5, 5.4, 5.0]])
+    >>> gs = np.array([3, 3, 3, 4, 4]); gi = np.array([1, 1, 1, 2, 2])
+    >>> [(r["class_id"], r["size"], round(r["iou"], 2)) for r in object_recovery(xyz, [7, 7, 0, 9, 9], gs, gi, {3, 4})]
+    [(3, 0.2, 0.67), (4, 0.4, 1.0)]
+    """
+    gt_xyz = np.asarray(gt_xyz, np.float64)
+    pred_inst = np.asarray(pred_inst, np.int64)
+    gt_sem, gt_inst = np.asarray(gt_sem, np.int64), np.asarray(gt_inst, np.int64)
+    on_thing = np.isin(gt_sem, list(things)) & (gt_inst != 0)
+    out = []
+    if not on_thing.any():
+        return out
+    pred_ids, pred_size = np.unique(pred_inst, return_counts=True)
+    size_of = dict(zip(pred_ids.tolist(), pred_size.tolist()))
+    keys = np.unique(np.stack([gt_sem[on_thing], gt_inst[on_thing]], 1), axis=0)
+    for c, g in keys:
+        mine = (gt_sem == c) & (gt_inst == g)
+        ids, inter = np.unique(pred_inst[mine], return_counts=True)
+        n = int(mine.sum())
+        ious = [k / (n + size_of[int(p)] - k) for p, k in zip(ids, inter) if p != 0]
+        extent = np.ptp(gt_xyz[mine], axis=0) if n > 1 else np.zeros(3)
+        out.append({"class_id": int(c), "instance": int(g), "points": n, "size": round(float(extent.max()), 4),
+                    "iou": float(max(ious)) if ious else 0.0})
+    return sorted(out, key=lambda r: (r["size"], r["class_id"], r["instance"]))
 
 
 def _default_classes(ps, pi, gs, gi, things, stuff):

@@ -121,6 +121,13 @@ def format_eval_table(m: dict) -> str:
                      f"{fmt(p.get('completeness'))}, Chamfer {fmt(p.get('chamfer'))}, F-score {fmt(p.get('fscore'))} "
                      f"(P {fmt(p.get('precision'))}, R {fmt(p.get('recall'))}) | objects found "
                      f"{fmt(p.get('instance_recall'))} of {p.get('n_instances')}")
+    if p and p.get("per_class"):
+        lines.append("3D point IoU per class: " + ", ".join(f"{k} {fmt(v)}" for k, v in
+                                                           sorted(p["per_class"].items(), key=lambda kv: kv[1])))
+    if p and p.get("objects"):
+        small = p["objects"][:SMALLEST_OBJECTS]
+        lines.append(f"smallest {len(small)} GT objects (size = largest side, point IoU, found at > 0.5): " + ", ".join(
+            f"{o['class']} {o['size']:.2f} m {fmt(o['iou'])}{'' if o['iou'] > 0.5 else ' (lost)'}" for o in small))
     g = m.get("geometry_from_depth")
     if g:
         lines.append(f"3D geometry ({g.get('source')}, {g.get('n_pred')} points vs {g.get('n_gt')} from the "
@@ -134,6 +141,10 @@ def format_eval_table(m: dict) -> str:
         lines.append(f"render 2048 rays: {fmt(t.get('median_ms'), 1)} ms (median of {t.get('repeats')}, "
                      f"{th} thread{'s' if th != 1 else ''}, {t.get('device')})")
     return "\n".join(line.rstrip() for line in lines)
+
+
+#: How many of the smallest GT objects the table lists with their recovery.
+SMALLEST_OBJECTS = 5
 
 
 def _delta(a: Any, b: Any) -> float | None:
