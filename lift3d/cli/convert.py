@@ -101,6 +101,7 @@ def add_parser(subparsers: argparse._SubParsersAction, verb: str) -> argparse.Ar
                         "is kept): a video-rate capture's neighbours add little but time (default: %(default)s)")
     p.add_argument("--image-format", choices=["png", "jpg"], default="png",
                    help="format of the written images (default: %(default)s, lossless)")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.add_argument("--overwrite", action="store_true",
                    help="replace a scene folder already at --out (only the files a scene folder holds)")
     p.set_defaults(func=run)
@@ -125,7 +126,7 @@ def run(args: argparse.Namespace) -> int:
         raise InputError("--depth-as-gt", "keeps the depth maps that --no-depth leaves out: give one of them")
     options = WriteOptions(downscale=args.downscale, image_ext=f".{args.image_format}",
                            depth_scale=args.depth_scale, overwrite=args.overwrite, depth_as_gt=args.depth_as_gt,
-                           frame_step=args.frame_step)
+                           frame_step=args.frame_step, progress=not args.quiet)
     _reject_foreign_flags(args)
 
     if args.source == "colmap":

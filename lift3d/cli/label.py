@@ -121,6 +121,7 @@ def add_parser(subparsers, verb: str) -> argparse.ArgumentParser:
                    help="the world's up direction, when known (default: estimated from the capture)")
     for flag, (_, default, metavar, text) in GEOMETRIC_FLAGS.items():
         g.add_argument(flag, type=float, default=None, metavar=metavar, help=f"{text} (default: {default:g})")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=run)
     return p
 
@@ -144,7 +145,7 @@ def run(args: argparse.Namespace) -> int:
                 raise InputError(flag, "does not apply to --geometric (its classes are wall, floor, ceiling, object)")
         settings = GeometricSettings(up=args.up, **{GEOMETRIC_FLAGS[f][0]: v for f, v in given.items()
                                                     if f in GEOMETRIC_FLAGS})
-        report = label_geometric(args.data, settings, depth_source=args.depth_source)
+        report = label_geometric(args.data, settings, depth_source=args.depth_source, progress=not args.quiet)
         print(format_report(report, args.data))
         return 0
     if given:
@@ -153,7 +154,7 @@ def run(args: argparse.Namespace) -> int:
         if args.tta or args.save_probabilities:
             raise InputError("--from-predictions", "--tta and --save-probabilities need --model")
         report = label_from_predictions(args.data, args.from_predictions, classes=args.classes,
-                                        prediction_categories=args.prediction_categories)
+                                        prediction_categories=args.prediction_categories, progress=not args.quiet)
         print(format_report(report, args.data))
         return 0
     if args.prediction_categories is not None:
@@ -163,6 +164,7 @@ def run(args: argparse.Namespace) -> int:
         tta_flip=not args.no_tta_flip, batch_size=args.batch_size, device=args.device, threshold=args.threshold,
         overlap_threshold=args.overlap_threshold, shortest_edge=args.shortest_edge,
         confidence=not args.no_confidence, save_probabilities=args.save_probabilities, cache_dir=args.cache_dir,
+        progress=not args.quiet,
     )
     print(format_report(report, args.data))
     return 0
