@@ -382,17 +382,18 @@ def keep_clear_of_room(c2w: np.ndarray, caster: RayCaster, room_caster: RayCaste
     c2w = c2w.copy()
     centres = c2w[:, :3, 3].copy()
     for _ in range(iterations):
-        bad_room = room_caster.distance(centres) < room_clearance
-        bad_any = (caster.distance(centres) < min_clearance) & ~bad_room
-        if not bad_room.any() and not bad_any.any():
-            break
-        for bad, cast, clear in ((bad_room, room_caster, room_clearance), (bad_any, caster, min_clearance)):
-            idx = np.flatnonzero(bad)
+        # Both pushes at once, so a camera in a corner between the room and a thing does not swing back and forth.
+        move = np.zeros_like(centres)
+        for cast, clear in ((room_caster, room_clearance), (caster, min_clearance)):
+            short = clear - cast.distance(centres)
+            idx = np.flatnonzero(short > 0)
             if len(idx):
-                near = cast.closest_points(centres[idx])
-                away = centres[idx] - near
+                away = centres[idx] - cast.closest_points(centres[idx])
                 away /= np.maximum(np.linalg.norm(away, axis=1, keepdims=True), 1e-9)
-                centres[idx] = near + away * (clear + 0.02)
+                move[idx] += away * (short[idx, None] + 0.02)
+        if not move.any():
+            break
+        centres += move
     d_room, d_any = room_caster.distance(centres), caster.distance(centres)
     if np.any(d_room < room_clearance - 1e-3) or np.any(d_any < min_clearance - 1e-3):
         k = int(np.argmin(np.minimum(d_room - room_clearance, d_any - min_clearance)))
