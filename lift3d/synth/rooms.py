@@ -187,10 +187,6 @@ class Room:
         lo, hi = self.outline.min(0), self.outline.max(0)
         return np.array([[lo[0], lo[1], 0.0], [hi[0], hi[1], self.ceiling.top]])
 
-    @property
-    def area(self) -> float:
-        return polygon_area(self.place_region)
-
 
 # --------------------------------------------------------------------------------------------- textures
 def wall_texture(rng, mats: MaterialBank) -> tuple[int, dict]:
