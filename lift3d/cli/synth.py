@@ -13,8 +13,9 @@ instances, class confusion, boundary errors, abstention, spurious segments, view
 scores), sensor depth and optionally noisy poses; see docs/synth.md.
 indoor: a furnished room (bounded); outdoor: a long street with sky (unbounded). A seed changes the scene
 (room shape and size, textures, lighting, objects; street layout), the camera path (under --camera-path
-auto) and every noise. The same arguments give the same files byte for byte; every option is recorded in
-transforms.json under `lift3d_synth`."""
+auto) and every noise. --room-shape asks for rooms that are not boxes and --clutter for rooms of 30-40
+things (rows of one class, thin and flat things): held-out cases for tuning. The same arguments give the
+same files byte for byte; every option is recorded in transforms.json under `lift3d_synth`."""
 
 
 def _pose_noise(text: str) -> float:
@@ -28,6 +29,7 @@ def add_parser(subparsers, verb: str) -> argparse.ArgumentParser:
     """Register ``lift3d synth`` on the CLI's subparsers."""
     # The choices come from lift3d.synth (scipy, Open3D): here, not at module level, and built only when
     # this verb runs (HELP, see lift3d.cli.main), so that `lift3d --help` stays cheap.
+    from lift3d.synth.indoor import CLUTTER_LEVELS, ROOM_SHAPES
     from lift3d.synth.make import CAMERA_PATHS, KINDS
     from lift3d.synth.noise import PRESETS
     from lift3d.synth.sensors import DEPTH_MODES
@@ -57,6 +59,15 @@ def add_parser(subparsers, verb: str) -> argparse.ArgumentParser:
     p.add_argument("--pose-noise", nargs=2, type=_pose_noise, default=(0.0, 0.0), metavar=("DEG", "CM"),
                    help="RMS rotation (degrees) and translation (centimetres) noise of the written poses; "
                         "rendering uses the true ones, kept as gt_transform_matrix (default: 0 0)")
+    p.add_argument("--room-shape", default="auto", choices=ROOM_SHAPES,
+                   help="indoor room: auto (the seed's rectangle or L, as before), box, l, polygon (5-8 walls at "
+                        "non-right angles), hexagon, sloped (plane ceiling 3.6-2.2 m), vaulted (barrel vault), "
+                        "round (cylinder or one curved wall), open (two rooms through a doorway, or open onto a "
+                        "dark space) (default: auto)")
+    p.add_argument("--clutter", default="none", choices=CLUTTER_LEVELS,
+                   help="indoor things: none (6-16, as before), dense (30-40: several of a class side by side, "
+                        "thin and flat things, things on tables), auto (the seed picks; dense in one room of "
+                        "three) (default: none)")
     p.add_argument("--views", type=int, default=60, metavar="N", help="number of views (default: 60)")
     p.add_argument("--width", type=int, default=128, help="image width in pixels (default: 128)")
     p.add_argument("--height", type=int, default=128, help="image height in pixels (default: 128)")
@@ -72,7 +83,8 @@ def run(args: argparse.Namespace) -> int:
     report = make_scene(args.out, kind=args.kind, seed=args.seed, noise=args.noise, n_views=args.views,
                         width=args.width, height=args.height, progress=True, camera_path=args.camera_path,
                         depth=args.depth, pose_noise=tuple(args.pose_noise), view_confusion=args.view_confusion,
-                        score_informativeness=args.score_informativeness)
+                        score_informativeness=args.score_informativeness, room_shape=args.room_shape,
+                        clutter=args.clutter)
     print(format_summary(report))
     return 0
 
@@ -89,7 +101,8 @@ def format_summary(report: dict) -> str:
     if "room" in scene:
         room = scene["room"]
         size = room["size_m"]
-        what = (f"{room['shape']} room {size[0]:.1f} x {size[1]:.1f} x {size[2]:.1f} m, walls "
+        variant = f" ({room['variant'].replace('_', ' ')})" if "variant" in room else ""
+        what = (f"{room['shape']}{variant} room {size[0]:.1f} x {size[1]:.1f} x {size[2]:.1f} m, walls "
                 f"{scene['wall_texture']['style']}, floor {scene['floor_texture']['style']}, light "
                 f"{scene['lighting']['kelvin']} K")
     else:
@@ -104,7 +117,10 @@ def format_summary(report: dict) -> str:
         f"wrote {report['kind']} scene to {report['out']} in {report['seconds']:.1f} s: {report['n_views']} views "
         f"{report['width']}x{report['height']} (train {report['splits']['train']}, val {report['splits']['val']}, "
         f"test {report['splits']['test']}; disjoint)",
-        f"  content: {what}; {c['n_things']} objects of {c['n_thing_classes']} thing classes, extent "
+        f"  content: {what}; {c['n_things']} objects of {c['n_thing_classes']} thing classes"
+        + (" (dense clutter)" if o["clutter_level"] == "dense" else "")
+        + f" ({c['thin_things']} thin, {c['flat_things']} flat; {c['things_seen_in_3_views']} seen in >= 3 views), "
+        f"extent "
         f"{c['extent_m']:.1f} m"
         + (f" = {c['extent_over_baseline']}x the camera baseline ({c['camera_baseline_m']:.2f} m)"
            if c["scene_box"]["type"] == "unbounded" else "")

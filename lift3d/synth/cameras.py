@@ -17,6 +17,13 @@ looking around and jitter; ``orbit`` needs a room.
 
 Every camera ends at least :data:`MIN_CLEARANCE` from any surface: after planning, a camera closer than that
 is pushed straight away from the nearest surface point (Open3D distance queries).
+
+Rooms with a :class:`~lift3d.synth.geometry.RoomSpec` (the shapes beyond the original rectangle and L, and
+cluttered rooms) are planned on the spec's camera region with its inner walls as obstacles, under the ceiling
+height above each point rather than the room's top, and keep their cameras at least ``spec.clearance``
+(0.5 m) from the walls, floor and ceiling — ``orbit`` and ``walk`` cameras from everything; in cluttered rooms
+some views then turn to the things seen in too few views (:func:`cover_things`). Rooms without one keep the
+original planning, draw for draw.
 """
 
 from __future__ import annotations
@@ -26,6 +33,8 @@ import numpy as np
 from scipy import sparse
 from scipy.ndimage import gaussian_filter1d
 from scipy.sparse.csgraph import dijkstra
+
+from dataclasses import replace
 
 from lift3d.data.cameras import look_at
 from lift3d.synth.geometry import RayCaster, SceneContent
@@ -55,6 +64,9 @@ class FloorPlan:
         poly = content.room_polygon
         if poly is None:
             raise ValueError("FloorPlan needs a room outline (indoor scenes)")
+        spec = content.room
+        if spec is not None:
+            poly = spec.camera_region
         self.res = float(resolution)
         self.origin = poly.min(0) - 2 * self.res
         size = np.ceil((poly.max(0) + 2 * self.res - self.origin) / self.res).astype(int) + 1
@@ -62,10 +74,17 @@ class FloorPlan:
         free = np.zeros(self.shape, np.uint8)
         # fillPoly with 4 fractional bits: outlines and hulls land on the grid to 1/16 of a cell.
         cv2.fillPoly(free, [np.round(self.to_pixel(poly) * 16).astype(np.int32)], 1, shift=4)
+        #: distance (metres) to the walls alone (None: the original rooms, where ``clearance`` is all there is)
+        self.wall_clearance = None
+        if spec is not None:
+            for ob in spec.obstacles:  # inner walls
+                cv2.fillConvexPoly(free, np.round(self.to_pixel(ob) * 16).astype(np.int32), 0, shift=4)
+            self.wall_clearance = cv2.distanceTransform(free, cv2.DIST_L2, 5).astype(np.float64) * self.res
         for obj in content.floor_things:
             hull = cv2.convexHull(self.to_pixel(obj.mesh.vertices[:, :2]).astype(np.float32))
             cv2.fillConvexPoly(free, np.round(hull[:, 0] * 16).astype(np.int32), 0, shift=4)
         self.clearance = cv2.distanceTransform(free, cv2.DIST_L2, 5).astype(np.float64) * self.res
+        self.wall_margin = spec.clearance if spec is not None else 0.0
 
     def to_pixel(self, xy: np.ndarray) -> np.ndarray:
         """World ``(x, y)`` → continuous ``(column, row)``."""
@@ -75,21 +94,26 @@ class FloorPlan:
         """Cell indices → world ``[N, 2]`` cell centres."""
         return self.origin + np.column_stack([cols, rows]).astype(np.float64) * self.res
 
-    def clearance_at(self, xy: np.ndarray) -> np.ndarray:
-        """``[N]`` clearance at world points (nearest cell; 0 off the grid)."""
+    def clearance_at(self, xy: np.ndarray, walls_only: bool = False) -> np.ndarray:
+        """``[N]`` clearance at world points (nearest cell; 0 off the grid); ``walls_only``: from the walls
+        alone (rooms with a spec)."""
+        grid = self.wall_clearance if walls_only else self.clearance
         px = np.round(self.to_pixel(np.atleast_2d(xy))).astype(int)
         ok = (px[:, 0] >= 0) & (px[:, 0] < self.shape[1]) & (px[:, 1] >= 0) & (px[:, 1] < self.shape[0])
         out = np.zeros(len(px))
-        out[ok] = self.clearance[px[ok, 1], px[ok, 0]]
+        out[ok] = grid[px[ok, 1], px[ok, 0]]
         return out
 
     def walkable(self, min_clearance: float) -> np.ndarray:
         """``bool`` grid: the largest connected area of cells at least ``min_clearance`` from obstacles,
-        relaxing the clearance (down to 0.3 m) when no cell has that much."""
+        relaxing the clearance (down to 0.3 m) when no cell has that much; in rooms with a spec also at least
+        its clearance (plus a cell) from the walls, whatever the relaxing."""
         for c in (min_clearance, 0.4, 0.35, 0.3):
             if c > min_clearance:
                 continue
             mask = (self.clearance >= c).astype(np.uint8)
+            if self.wall_clearance is not None:
+                mask &= (self.wall_clearance >= self.wall_margin + self.res).astype(np.uint8)
             n, lab = cv2.connectedComponents(mask, connectivity=8)
             if n > 1:
                 sizes = np.bincount(lab.ravel())[1:]
@@ -160,7 +184,8 @@ def _c2w(eye: np.ndarray, yaw: float, pitch: float, roll: float = 0.0) -> np.nda
 def orbit_path(content: SceneContent, plan: FloorPlan, n_views: int, rng: np.random.Generator) -> np.ndarray:
     """``[n, 4, 4]`` OpenGL camera-to-world matrices circling the room's middle at varied heights, each
     looking at an object or across the room."""
-    mask = plan.walkable(0.45)
+    spec = content.room
+    mask = plan.walkable(0.45 if spec is None else max(0.45, spec.clearance))
     rows, cols = np.nonzero(mask)
     free = plan.to_world(rows, cols)
     centre = free.mean(0)
@@ -172,7 +197,8 @@ def orbit_path(content: SceneContent, plan: FloorPlan, n_views: int, rng: np.ran
         base = 2 * np.pi * k / n_views + rng.uniform(-0.15, 0.15)
         goal = centre + rng.uniform(0.55, 0.85) * half * np.array([np.cos(base), np.sin(base)])
         xy = free[np.argmin(np.linalg.norm(free - goal, axis=1))] + rng.uniform(-0.5, 0.5, 2) * plan.res
-        eye = np.array([xy[0], xy[1], rng.uniform(0.9, min(2.2, height - 0.4))])
+        top = min(2.2, height - 0.4) if spec is None else max(0.95, min(2.2, float(spec.camera_top(xy[None])[0])))
+        eye = np.array([xy[0], xy[1], rng.uniform(0.9, top)])
         if rng.random() < 0.5 and things:
             lo, hi = things[int(rng.integers(len(things)))].mesh.bounds
             target = (lo + hi) / 2
@@ -189,7 +215,8 @@ def orbit_path(content: SceneContent, plan: FloorPlan, n_views: int, rng: np.ran
 def walk_path(content: SceneContent, plan: FloorPlan, n_views: int, rng: np.random.Generator,
               handheld: bool = False) -> np.ndarray:
     """``[n, 4, 4]`` camera-to-world matrices of a walk-through (``handheld``: close passes and jitter)."""
-    mask = plan.walkable(0.3 if handheld else 0.45)
+    spec = content.room
+    mask = plan.walkable(0.3 if handheld else (0.45 if spec is None else max(0.45, spec.clearance)))
     rows, cols = np.nonzero(mask)
     free = plan.to_world(rows, cols)
     clear = plan.clearance[rows, cols]
@@ -220,6 +247,8 @@ def walk_path(content: SceneContent, plan: FloorPlan, n_views: int, rng: np.rand
     dense = _resample(route, 0.05)
     smooth = gaussian_filter1d(dense, 6.0, axis=0, mode="nearest")  # ~30 cm: round the grid's corners
     keep = plan.clearance_at(smooth) >= MIN_CLEARANCE + 0.05
+    if spec is not None:  # smoothing must not take the path nearer the walls than the plan allows
+        keep &= plan.clearance_at(smooth, walls_only=True) >= spec.clearance + plan.res
     dense = np.where(keep[:, None], smooth, dense)
     seg = np.linalg.norm(np.diff(dense, axis=0), axis=1)
     s = np.concatenate([[0.0], np.cumsum(seg)])
@@ -239,7 +268,7 @@ def walk_path(content: SceneContent, plan: FloorPlan, n_views: int, rng: np.rand
         z = rng.uniform(1.2, 1.6) + _smooth_noise(rng, n_views, 0.08, 4.0)[:, 0]
     else:
         z = rng.uniform(1.45, 1.7) + 0.02 * np.sin(2 * np.pi * t / 0.7)  # a step every ~70 cm
-    z = np.clip(z, 0.5, ceiling - 0.35)
+    z = np.clip(z, 0.5, ceiling - 0.35) if spec is None else np.clip(z, 0.6, spec.camera_top(xy))
     yaw, pitch = _glance_at_things(content, xy, z, yaw, pitch, plan.clearance_at(xy) if handheld else None)
     if handheld:
         xy = xy + _smooth_noise(rng, n_views, 0.04, 2.0, dims=2) + rng.normal(0, 0.01, (n_views, 2))
@@ -340,10 +369,130 @@ def keep_clear(c2w: np.ndarray, caster: RayCaster, min_clearance: float = MIN_CL
     return c2w
 
 
+def keep_clear_of_room(c2w: np.ndarray, caster: RayCaster, room_caster: RayCaster, min_clearance: float,
+                       room_clearance: float, iterations: int = 20) -> np.ndarray:
+    """:func:`keep_clear` for rooms with a spec: every camera at least ``room_clearance`` from the room's
+    surfaces (``room_caster``: walls, floor, ceiling, windows, rug) and ``min_clearance`` from everything.
+
+    Raises
+    ------
+    RuntimeError
+        When some camera is still too close after ``iterations`` pushes (a planning bug).
+    """
+    c2w = c2w.copy()
+    centres = c2w[:, :3, 3].copy()
+    for _ in range(iterations):
+        # Both pushes at once, so a camera in a corner between the room and a thing does not swing back and forth.
+        move = np.zeros_like(centres)
+        for cast, clear in ((room_caster, room_clearance), (caster, min_clearance)):
+            short = clear - cast.distance(centres)
+            idx = np.flatnonzero(short > 0)
+            if len(idx):
+                away = centres[idx] - cast.closest_points(centres[idx])
+                away /= np.maximum(np.linalg.norm(away, axis=1, keepdims=True), 1e-9)
+                move[idx] += away * (short[idx, None] + 0.02)
+        if not move.any():
+            break
+        centres += move
+    d_room, d_any = room_caster.distance(centres), caster.distance(centres)
+    if np.any(d_room < room_clearance - 1e-3) or np.any(d_any < min_clearance - 1e-3):
+        k = int(np.argmin(np.minimum(d_room - room_clearance, d_any - min_clearance)))
+        raise RuntimeError(f"camera {k} is {d_room[k]:.3f} m from the room and {d_any[k]:.3f} m from anything "
+                           "after pushing")
+    c2w[:, :3, 3] = centres
+    return c2w
+
+
+def _thing_samples(content: SceneContent, per_thing: int = 24) -> list[np.ndarray]:
+    """Up to ``per_thing`` vertices spread over each thing's mesh, and its vertices' mean."""
+    out = []
+    for o in content.things:
+        v = o.mesh.vertices
+        idx = np.unique(np.linspace(0, len(v) - 1, min(per_thing, len(v))).astype(int))
+        out.append(np.vstack([v[idx], v.mean(0)]))
+    return out
+
+
+def things_in_view(c2w: np.ndarray, content: SceneContent, caster: RayCaster, hfov_deg: float, aspect: float,
+                   samples: list[np.ndarray] | None = None, min_points: int = 2) -> np.ndarray:
+    """``[V, T]`` bool: which things each view sees — at least ``min_points`` of its sample points inside the
+    image (a 5 % margin) with nothing in front of them."""
+    samples = _thing_samples(content) if samples is None else samples
+    ids = np.array([o.segment_id for o in content.things])
+    owner = np.concatenate([np.full(len(p), k) for k, p in enumerate(samples)])
+    pts = np.concatenate(samples)
+    tan_x = np.tan(np.radians(hfov_deg) / 2) * 0.95
+    tan_y = tan_x / aspect
+    out = np.zeros((len(c2w), len(samples)), bool)
+    for k, m in enumerate(c2w):
+        eye = m[:3, 3]
+        local = (pts - eye) @ m[:3, :3]  # camera axes: x right, y up, looking down -z
+        depth = -local[:, 2]
+        inside = np.flatnonzero((depth > 0.1) & (np.abs(local[:, 0]) < tan_x * depth) &
+                                (np.abs(local[:, 1]) < tan_y * depth))
+        if not len(inside):
+            continue
+        d = pts[inside] - eye
+        dist = np.linalg.norm(d, axis=1)
+        hits = caster.cast(np.repeat(eye[None], len(inside), axis=0), d / dist[:, None])
+        seen = (hits.segment == ids[owner[inside]]) | (hits.t >= dist - 0.01)
+        out[k] = np.bincount(owner[inside][seen], minlength=len(samples)) >= min_points
+    return out
+
+
+def cover_things(c2w: np.ndarray, content: SceneContent, caster: RayCaster, hfov_deg: float, aspect: float,
+                 min_views: int) -> np.ndarray:
+    """Turn views (rotation only, keeping their positions) towards the things seen in fewer than
+    ``min_views`` views, least seen first: each time the view that sees that thing best from where it stands
+    (nearest, with a clear line of sight) among those whose turn costs no other thing its last needed view.
+    Things no view can see stay as they are."""
+    things = content.things
+    if not things:
+        return c2w
+    c2w = c2w.copy()
+    samples = _thing_samples(content)
+    vis = things_in_view(c2w, content, caster, hfov_deg, aspect, samples)
+    centres = np.array([p[:-1].mean(0) for p in samples])
+    hopeless: set[int] = set()
+    for _ in range(4 * len(c2w)):
+        count = vis.sum(0)
+        need = [int(t) for t in np.argsort(count, kind="stable") if count[t] < min_views and int(t) not in hopeless]
+        if not need:
+            break
+        t = need[0]
+        eyes = c2w[:, :3, 3]
+        dist = np.linalg.norm(centres[t] - eyes, axis=1)
+        best = None
+        for k in np.argsort(dist, kind="stable"):
+            if vis[k, t] or not 0.5 < dist[k] < 6.0:
+                continue
+            turned = look_at(eyes[k], centres[t])
+            new = things_in_view(turned[None], content, caster, hfov_deg, aspect, samples)[0]
+            if not new[t]:
+                continue
+            lost = vis[k] & ~new
+            if np.any(count[lost] <= min_views):
+                continue
+            best = (k, turned, new)
+            break
+        if best is None:
+            hopeless.add(t)
+            continue
+        k, turned, new = best
+        c2w[k] = turned
+        vis[k] = new
+    return c2w
+
+
 def camera_path(content: SceneContent, caster: RayCaster, name: str, n_views: int,
-                rng: np.random.Generator) -> np.ndarray:
+                rng: np.random.Generator, fov: tuple[float, float] | None = None) -> np.ndarray:
     """``[n, 4, 4]`` OpenGL camera-to-world matrices of path ``name`` (one of :data:`PATHS`), every camera at
-    least :data:`MIN_CLEARANCE` from any surface."""
+    least :data:`MIN_CLEARANCE` from any surface (in rooms with a spec at least its clearance from the room,
+    and ``orbit`` and ``walk`` cameras from everything).
+
+    ``fov`` is ``(horizontal field of view in degrees, width / height)``: in cluttered rooms views turn to
+    the things seen in fewer than ``clip(round(n / 15), 1, 4)`` views (:func:`cover_things`).
+    """
     if name not in PATHS_OF_KIND[content.kind]:
         raise ValueError(f"camera path {name!r} is not available for {content.kind} scenes")
     if content.kind == "outdoor":
@@ -354,4 +503,13 @@ def camera_path(content: SceneContent, caster: RayCaster, name: str, n_views: in
             c2w = orbit_path(content, plan, n_views, rng)
         else:
             c2w = walk_path(content, plan, n_views, rng, handheld=name == "handheld")
-    return keep_clear(c2w, caster)
+    spec = content.room
+    if spec is None:
+        return keep_clear(c2w, caster)
+    cats = {c.id: c for c in content.categories}
+    room_caster = RayCaster(replace(content, objects=[o for o in content.objects if not cats[o.category_id].isthing]))
+    c2w = keep_clear_of_room(c2w, caster, room_caster, MIN_CLEARANCE if name == "handheld" else spec.clearance,
+                             spec.clearance)
+    if spec.cover_things and fov is not None:
+        c2w = cover_things(c2w, content, caster, fov[0], fov[1], int(np.clip(round(n_views / 15), 1, 4)))
+    return c2w

@@ -26,6 +26,7 @@ from __future__ import annotations
 import importlib.util
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Callable
 
 import numpy as np
 
@@ -335,7 +336,9 @@ class SceneObject:
 
     ``segment_id`` is the scene-consistent GT panoptic id (stuff: the category id; things: 1000 + k).
     ``rests_on`` is the ``segment_id`` of the thing this one stands on (a cup on a table), 0 for the floor
-    or ground.
+    or ground. ``thin`` is the thickness (metres) of its thinnest part (legs, poles, wings), None when it
+    has none or it is not known; ``yaw`` (radians) the turn about z from the frame it was built in, where it
+    is axis-aligned (None: not known).
     """
 
     segment_id: int
@@ -343,6 +346,8 @@ class SceneObject:
     mesh: Mesh
     name: str = ""
     rests_on: int = 0
+    thin: float | None = None
+    yaw: float | None = None
 
 
 @dataclass
@@ -361,6 +366,38 @@ class Lighting:
         """``[N, 3]`` RGB irradiance factor of unit ``normals`` ``[N, 3]``."""
         out = self.ambient[None, :] + self.hemisphere * normals[:, 2:3]
         return out + np.maximum(normals @ self.directions.T, 0.0) @ self.colors
+
+
+@dataclass
+class RoomSpec:
+    """What planning cameras in a room needs beyond its floor outline (rooms other than the original
+    rectangle and L, and cluttered rooms; None keeps the original cameras).
+
+    Attributes
+    ----------
+    ceiling_at : callable
+        ``[N, 2]`` floor points -> ``[N]`` height of the ceiling above them.
+    camera_region : np.ndarray
+        ``[K, 2]`` polygon (counter-clockwise) the cameras stay in.
+    camera_top : callable
+        ``[N, 2]`` -> ``[N]`` the highest a camera may be there (the ceiling or a door's lintel less the
+        clearance).
+    obstacles : list of np.ndarray
+        ``[M, 2]`` convex floor polygons no camera stands on (inner walls).
+    clearance : float
+        Every camera stays at least this far (metres) from the walls, floor and ceiling; ``orbit`` and ``walk``
+        cameras also from everything else (``handheld`` passes close to furniture on purpose).
+    cover_things : bool
+        Turn some views towards the things seen in too few views (cluttered rooms, whose small things are
+        the point; ``lift3d.synth.cameras.cover_things``).
+    """
+
+    ceiling_at: Callable[[np.ndarray], np.ndarray]
+    camera_region: np.ndarray
+    camera_top: Callable[[np.ndarray], np.ndarray]
+    obstacles: list = field(default_factory=list)
+    clearance: float = 0.5
+    cover_things: bool = False
 
 
 @dataclass
@@ -385,6 +422,8 @@ class SceneContent:
     #: what the seed chose (room shape and size, textures, lighting, objects, street layout): JSON-ready, written
     #: to ``transforms.json`` under ``lift3d_synth.scene``
     description: dict = field(default_factory=dict)
+    #: indoor rooms of the new shapes and cluttered rooms: what camera planning needs (None: the original rooms)
+    room: RoomSpec | None = None
 
     @property
     def things(self) -> list[SceneObject]:

@@ -12,7 +12,9 @@ their pseudo-labels; ``--depth`` changes only the depth maps; ``--pose-noise`` o
 * the view-correlated confusers ``SeedSequence([seed, 3, kind])`` and their per-frame draws
   ``SeedSequence([seed, 4, kind, i])``,
 * the depth sensor of frame ``i`` ``SeedSequence([seed, 5, kind, i])``,
-* the pose noise ``SeedSequence([seed, 6, kind])``.
+* the pose noise ``SeedSequence([seed, 6, kind])``,
+* the clutter (``--clutter``: whether ``auto`` makes a dense room, and what the dense room adds)
+  ``SeedSequence([seed, 7, kind])``.
 """
 
 from __future__ import annotations
@@ -31,7 +33,8 @@ from lift3d.errors import InputError
 from lift3d.synth.cameras import MIN_CLEARANCE, PATHS, PATHS_OF_KIND
 from lift3d.synth.cameras import camera_path as plan_camera_path
 from lift3d.synth.geometry import RayCaster, SceneContent
-from lift3d.synth.indoor import build_indoor
+from lift3d.synth.indoor import CLUTTER_LEVELS, ROOM_SHAPES, build_indoor
+from lift3d.synth.polygons import upright_box, yawed_box
 from lift3d.synth.noise import PRESETS, NoiseConfig, NoiseStats, ViewConfusers, noise_config, simulate_segmenter
 from lift3d.synth.outdoor import build_outdoor
 from lift3d.synth.sensors import DEPTH_MODES, DepthSensor, perturb_poses, pose_error
@@ -50,12 +53,19 @@ SYNTH_VERSION = 2
 _OWNED = ("images", "panoptic", "gt", "depth", "transforms.json", "panoptic.json", "synth_noise.json")
 #: Rotated-grid supersampling offsets (pixels from the centre): anti-aliased colour with 4 rays per pixel.
 _SUBPIXEL = np.array([[-0.125, -0.375], [0.375, -0.125], [0.125, 0.375], [-0.375, 0.125]])
+#: Share of seeds whose room ``--clutter auto`` makes dense.
+AUTO_DENSE_SHARE = 1 / 3
+#: A thing is *thin* when its thinnest part (legs, poles, wings) is below this (metres), *flat* when its
+#: upright box is at most :data:`FLAT_HEIGHT` high and at most :data:`FLAT_RATIO` of its length (``gt/objects.json``).
+THIN_PART = 0.05
+FLAT_HEIGHT = 0.1
+FLAT_RATIO = 0.3
 #: Options that override a ``--noise`` preset's field, and their flags (named in errors).
 NOISE_FLAGS = {"view_confusion": "--view-confusion", "score_informativeness": "--score-informativeness"}
 
 
 def _check_args(out, kind, seed, noise, n_views, width, height, camera_path_name, depth, pose_noise,
-                overrides) -> NoiseConfig:
+                overrides, room_shape="auto", clutter="none") -> NoiseConfig:
     if not isinstance(seed, (int, np.integer)) or not 0 <= seed < 2**63:
         raise InputError("--seed", f"must be a non-negative integer, got {seed!r}")
     if kind not in KINDS:
@@ -78,6 +88,14 @@ def _check_args(out, kind, seed, noise, n_views, width, height, camera_path_name
                                           f"{', '.join(('auto',) + PATHS_OF_KIND[kind])}")
     if depth not in DEPTH_MODES:
         raise InputError("--depth", f"{depth!r} is not one of {', '.join(DEPTH_MODES)}")
+    if room_shape not in ROOM_SHAPES:
+        raise InputError("--room-shape", f"{room_shape!r} is not one of {', '.join(ROOM_SHAPES)}")
+    if room_shape != "auto" and kind != "indoor":
+        raise InputError("--room-shape", f"{room_shape!r} needs a room; {kind} scenes take auto")
+    if clutter not in CLUTTER_LEVELS:
+        raise InputError("--clutter", f"{clutter!r} is not one of {', '.join(CLUTTER_LEVELS)}")
+    if clutter == "dense" and kind != "indoor":
+        raise InputError("--clutter", f"dense needs a room; {kind} scenes take none or auto")
     try:
         deg, cm = (float(x) for x in pose_noise)
     except (TypeError, ValueError):
@@ -106,6 +124,49 @@ def _check_args(out, kind, seed, noise, n_views, width, height, camera_path_name
             raise InputError(out, "folder is not empty and is not an earlier `lift3d synth` scene; "
                                   "choose a new --out")
     return cfg
+
+
+# --------------------------------------------------------------------------------------------- content
+def build_content(kind: str, seed: int, room_shape: str = "auto", clutter: str = "none") -> tuple[SceneContent, str]:
+    """The scene content ``make_scene`` builds for these arguments, and the clutter level it has (``auto``
+    resolved: ``none`` or ``dense``) — for pictures and tests that need the geometry without the files."""
+    kind_code = KINDS.index(kind)
+
+    def stream(*keys: int) -> np.random.Generator:
+        return np.random.default_rng(np.random.SeedSequence([seed, keys[0], kind_code, *keys[1:]]))
+
+    if kind != "indoor":
+        return build_outdoor(stream(0)), "none"
+    clutter_rng = stream(7)
+    # Drawn whatever the option, so `auto` on a seed it makes dense is that same room.
+    auto_dense = bool(clutter_rng.random() < AUTO_DENSE_SHARE)
+    level = {"none": "none", "dense": "dense", "auto": "dense" if auto_dense else "none"}[clutter]
+    return build_indoor(stream(0), room_shape=room_shape, clutter=level, clutter_rng=clutter_rng), level
+
+
+def objects_table(content: SceneContent, pixels: dict[int, list[int]], gt_instance: np.ndarray) -> list[dict]:
+    """``gt/objects.json``: every GT thing's id (its instance id in ``gt/points.ply`` and the GT panoptic
+    maps), class, oriented box (upright, turned as the thing was turned when placed; the smallest upright box
+    when that is not known), largest dimension, thinnest part, whether it is thin or flat, what it stands on,
+    and how much the cameras see of it (views with a pixel of it, its pixels, its GT points)."""
+    cats = {c.id: c.name for c in content.categories}
+    n_points = dict(zip(*np.unique(gt_instance[gt_instance > 0], return_counts=True)))
+    rows = []
+    for o in content.things:
+        box = upright_box(o.mesh.vertices) if o.yaw is None else yawed_box(o.mesh.vertices, o.yaw)
+        ext = box["extent"]
+        seen = pixels.get(o.segment_id, [])
+        rows.append({
+            "id": o.segment_id, "class": cats[o.category_id], "name": o.name,
+            "on": "floor" if o.rests_on == 0 else o.rests_on,
+            "centre_m": np.round(box["centre"], 4).tolist(), "yaw_deg": round(float(np.degrees(box["yaw"])), 2),
+            "extent_m": np.round(ext, 4).tolist(), "max_dim_m": round(float(ext.max()), 4),
+            "thinnest_part_m": None if o.thin is None else round(float(o.thin), 4),
+            "thin": o.thin is not None and o.thin < THIN_PART,
+            "flat": bool(ext[2] <= FLAT_HEIGHT and ext[2] <= FLAT_RATIO * ext[0]),
+            "views": len(seen), "pixels": int(sum(seen)), "gt_points": int(n_points.get(o.segment_id, 0)),
+        })
+    return rows
 
 
 # --------------------------------------------------------------------------------------------- cameras
@@ -278,6 +339,8 @@ def make_scene(
     pose_noise: tuple[float, float] = (0.0, 0.0),
     view_confusion: float | None = None,
     score_informativeness: float | None = None,
+    room_shape: str = "auto",
+    clutter: str = "none",
 ) -> dict:
     """Write a synthetic labelled scene folder with simulated 2D segmenter noise and sensor models.
 
@@ -315,6 +378,12 @@ def make_scene(
         Share of things and stuff patches with an active view-correlated confuser (default: the preset's).
     score_informativeness : float, optional
         How much segment scores say about correctness, 0-1 (default: the preset's).
+    room_shape : str
+        Indoor: the room's shape, one of ``auto`` (the seed's rectangle or L), ``box``, ``l``, ``polygon``,
+        ``hexagon``, ``sloped``, ``vaulted``, ``round``, ``open`` (``docs/synth.md``).
+    clutter : {"none", "auto", "dense"}
+        Indoor: ``dense`` fills the room with 30-40 things (rows of one class, thin and flat things, things on
+        tables); ``auto`` lets the seed choose (dense in one room of three).
 
     Returns
     -------
@@ -331,7 +400,8 @@ def make_scene(
     """
     started = time.perf_counter()
     overrides = {"view_confusion": view_confusion, "score_informativeness": score_informativeness}
-    cfg = _check_args(out, kind, seed, noise, n_views, width, height, camera_path, depth, pose_noise, overrides)
+    cfg = _check_args(out, kind, seed, noise, n_views, width, height, camera_path, depth, pose_noise, overrides,
+                      room_shape, clutter)
     n_views, width, height, seed = int(n_views), int(width), int(height), int(seed)
     deg, cm = (float(x) for x in pose_noise)
     out = Path(out)
@@ -340,14 +410,14 @@ def make_scene(
     def stream(*keys: int) -> np.random.Generator:
         return np.random.default_rng(np.random.SeedSequence([seed, keys[0], kind_code, *keys[1:]]))
 
-    content: SceneContent = build_indoor(stream(0)) if kind == "indoor" else build_outdoor(stream(0))
+    content, clutter_level = build_content(kind, seed, room_shape, clutter)
     caster = RayCaster(content)
     camera_rng = stream(1)
     paths = PATHS_OF_KIND[kind]
     chosen = paths[int(camera_rng.integers(len(paths)))]  # drawn always, so `auto` and explicit agree
     path_name = chosen if camera_path == "auto" else camera_path
     hfov = float(camera_rng.uniform(60.0, 80.0) if kind == "indoor" else camera_rng.uniform(65.0, 85.0))
-    c2w = plan_camera_path(content, caster, path_name, n_views, camera_rng)
+    c2w = plan_camera_path(content, caster, path_name, n_views, camera_rng, fov=(hfov, width / height))
     fx, fy, cx, cy = _intrinsics(width, height, hfov)
     cameras = Cameras(c2w=c2w, fx=fx, fy=fy, cx=cx, cy=cy, width=width, height=height)
     names = [f"frame_{i:04d}" for i in range(n_views)]
@@ -390,14 +460,21 @@ def make_scene(
                        "rms_cm": round(float(100 * np.sqrt(np.mean(trans_err**2))), 4)},
         "splits": "test: every 5th view spread along the path; val: n // 12 views between test views, disjoint "
                   "from train and test (below 12 views one train view); train: the rest",
-        "scene": content.description,
     }
+    # Recorded when not the defaults, so the scenes of the defaults keep their bytes (absent: auto, none).
+    if room_shape != "auto":
+        options["room_shape"] = room_shape
+    if clutter != "none":
+        options["clutter"] = clutter
+        options["clutter_level"] = clutter_level
+    options["scene"] = content.description
     stats = NoiseStats(content.categories)
     pts, pt_sem, pt_inst, pt_rgb = [], [], [], []
     seen_segments: set[int] = set()
     thing_ids = {c.id for c in content.categories if c.isthing}
     test_arrays: list[tuple[np.ndarray, ...]] = []
     depth_stats: list[dict] = []
+    thing_pixels: dict[int, list[int]] = {}
     with SceneWriter(out, content.categories, depth_unit_scale_factor=content.depth_unit_scale_factor,
                      extra_meta={SYNTH_META_KEY: options}) as writer:
         for i in progress_bar(range(n_views), desc=f"synth {kind}", disable=not progress, unit="view"):
@@ -409,8 +486,12 @@ def make_scene(
                                              cameras.centers[i], stream(4, i))
             pseudo = simulate_segmenter(seg, gt_category, content.categories, content.confusable, cfg, stream(2, i),
                                         view_errors=view_errors)
-            present = [int(s) for s in np.unique(seg) if s != 0]
+            ids, n_px = np.unique(seg, return_counts=True)
+            present = [int(s) for s in ids if s != 0]
             seen_segments.update(present)
+            for seg_id, count in zip(ids.tolist(), n_px.tolist()):
+                if seg_id and gt_category[seg_id] in thing_ids:
+                    thing_pixels.setdefault(seg_id, []).append(count)
             gt_segments = [Segment(s, gt_category[s], 1.0) for s in present]
             pseudo_sem = np.zeros(seg.shape, np.int64)
             pseudo_thing = np.zeros(seg.shape, bool)
@@ -479,10 +560,15 @@ def make_scene(
         "view_confusers": confusers.to_json(),
     }
     write_json_atomic(out / "synth_noise.json", noise_json)
+    objects = objects_table(content, thing_pixels, np.concatenate(pt_inst)[keep])
+    write_json_atomic(out / "gt" / "objects.json", {
+        "thin_part_m": THIN_PART, "flat": {"height_m": FLAT_HEIGHT, "of_length": FLAT_RATIO},
+        "objects": objects})
     return {
         "out": str(out), "kind": kind, "seed": seed, "n_views": n_views, "width": width, "height": height,
-        "options": {k: options[k] for k in ("camera_path", "camera_path_option", "hfov_deg", "depth",
-                                            "view_confusion", "score_informativeness")},
+        "options": {**{k: options[k] for k in ("camera_path", "camera_path_option", "hfov_deg", "depth",
+                                               "view_confusion", "score_informativeness")},
+                    "room_shape": room_shape, "clutter": clutter, "clutter_level": clutter_level},
         "noise": {"name": cfg.name, **summary, "test_views": test_metrics},
         "depth": depth_report,
         "pose_noise": options["pose_noise"],
@@ -499,11 +585,14 @@ def make_scene(
             "scene_box": {"type": content.scene_box_type, "aabb": np.round(scene_box, 4).tolist()},
             "gt_points": int(len(keep)),
             "gt_points_voxel_m": round(voxel, 4),
+            "thin_things": sum(o["thin"] for o in objects), "flat_things": sum(o["flat"] for o in objects),
+            "things_seen_in_3_views": sum(o["views"] >= 3 for o in objects),
         },
         "splits": {k: len(v) for k, v in splits.items()},
         "paths": {
             "scene": str(out), "transforms": str(out / "transforms.json"), "pseudo_labels": str(out / "panoptic.json"),
-            "gt_points": str(out / "gt" / "points.ply"), "noise_stats": str(out / "synth_noise.json"),
+            "gt_points": str(out / "gt" / "points.ply"), "gt_objects": str(out / "gt" / "objects.json"),
+            "noise_stats": str(out / "synth_noise.json"),
         },
         "seconds": round(time.perf_counter() - started, 3),
     }
