@@ -54,3 +54,30 @@ def test_a_real_capture_from_open3d_layout_to_labelled_points(tmp_path):
     # the capture's world has y down: the export says so, and plot takes it from there
     assert np.allclose(exported["up"]["axis"], [0, -1, 0])
     assert any(s["name"] == "view-surface" and s["ran"] for s in exported["steps"]["points"])
+
+
+def test_a_pose_file_in_the_wrong_convention_stops_the_conversion_with_the_fix(tmp_path):
+    import shutil
+
+    import open3d as o3d
+
+    from lift3d.convert import WriteOptions
+    from lift3d.convert.open3d_rgbd import convert
+    from lift3d.errors import InputError
+
+    src = tmp_path / "capture"
+    shutil.copytree(EXCERPT, src)
+    # the same trajectory written world-to-camera where Open3D's .log holds camera-to-world
+    traj = o3d.io.read_pinhole_camera_trajectory(str(EXCERPT / "trajectory.log"))
+    for p in traj.parameters:
+        p.extrinsic = np.linalg.inv(p.extrinsic)
+    o3d.io.write_pinhole_camera_trajectory(str(src / "trajectory.log"), traj)
+    quiet = WriteOptions(progress=False)
+    with pytest.raises(InputError) as err:
+        convert(src, tmp_path / "out", intrinsic=None, options=quiet)
+    text = str(err.value)
+    assert "trajectory.log" in text and "--fix-poses invert" in text and "\n" not in text
+    fixed = convert(src, tmp_path / "out", intrinsic=None,
+                    options=WriteOptions(progress=False, overwrite=True, fix_poses="invert"))
+    right = convert(EXCERPT, tmp_path / "right", intrinsic=None, options=quiet)
+    np.testing.assert_allclose(fixed.cameras.c2w, right.cameras.c2w, atol=1e-6)

@@ -101,6 +101,10 @@ def add_parser(subparsers: argparse._SubParsersAction, verb: str) -> argparse.Ar
                         "is kept): a video-rate capture's neighbours add little but time (default: %(default)s)")
     p.add_argument("--image-format", choices=["png", "jpg"], default="png",
                    help="format of the written images (default: %(default)s, lossless)")
+    p.add_argument("--fix-poses", choices=["invert", "flip-axes", "invert-and-flip-axes"], metavar="FIX",
+                   help="the pose file holds another convention than the source's: invert (world-to-camera "
+                        "matrices), flip-axes (the other camera axes: OpenGL for OpenCV or back), or both. The "
+                        "conversion checks the poses against the images and names the fix when one is needed")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.add_argument("--overwrite", action="store_true",
                    help="replace a scene folder already at --out (only the files a scene folder holds)")
@@ -126,7 +130,9 @@ def run(args: argparse.Namespace) -> int:
         raise InputError("--depth-as-gt", "keeps the depth maps that --no-depth leaves out: give one of them")
     options = WriteOptions(downscale=args.downscale, image_ext=f".{args.image_format}",
                            depth_scale=args.depth_scale, overwrite=args.overwrite, depth_as_gt=args.depth_as_gt,
-                           frame_step=args.frame_step, progress=not args.quiet)
+                           frame_step=args.frame_step, progress=not args.quiet,
+                           fix_poses=args.fix_poses.replace("-", " ") if args.fix_poses else None,
+                           pose_axes="opengl" if args.source in ("nerfstudio", "instant-ngp") else "opencv")
     _reject_foreign_flags(args)
 
     if args.source == "colmap":

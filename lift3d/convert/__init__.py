@@ -35,6 +35,7 @@ from lift3d.data.cameras import is_rigid, opencv_to_opengl
 from lift3d.data.images import read_depth, read_label_map, read_rgb, write_label_map
 from lift3d.data.scene import Category, Scene, SceneWriter, Segment, load_scene
 from lift3d.errors import InputError
+from lift3d.sfm.pose_check import FIX_MEANS, check_pose_convention, with_fix
 from lift3d.utils.progress import progress_bar
 
 #: The ``--from`` choices and the module that reads each.
@@ -137,6 +138,15 @@ class WriteOptions:
 
     downscale: int = 1
     frame_step: int = 1
+    fix_poses: str | None = None
+    """``--fix-poses``: a fix of :data:`lift3d.sfm.pose_check.FIXES` applied to every pose as the source stored it
+    (``invert``, ``flip axes``, ``invert and flip axes``): a pose file written in another convention than its
+    reader assumes."""
+    pose_axes: str = "opencv"
+    """The camera axes the source stores its poses in (``opengl`` for ``transforms.json`` files), for
+    ``fix_poses`` and the check's advice."""
+    check_poses: bool = True
+    """Check the written poses against the images (:func:`lift3d.sfm.pose_check.check_pose_convention`)."""
     image_ext: str = ".png"
     depth_scale: float = 1e-3
     overwrite: bool = False
@@ -415,7 +425,9 @@ def write_scene(
                 # The majority of the block decides; a tie goes to the smaller value, 0 = ignore.
                 mask = downscale.block_majority((~mask).astype(np.uint8), n) == 0
 
-        c2w = opencv_to_opengl(fr.c2w_opencv)
+        c2w_opencv = fr.c2w_opencv if opts.fix_poses is None else with_fix(fr.c2w_opencv[None], opts.fix_poses,
+                                                                            opts.pose_axes)[0]
+        c2w = opencv_to_opengl(c2w_opencv)
         if not is_rigid(c2w, atol=1e-3):
             raise InputError(fr.pose_source, f"pose of {fr.name!r} is not a rigid transform")
         confidence = None
@@ -457,7 +469,29 @@ def write_scene(
         scene.pseudo_labels(0)
     if scene.frames[0].gt_panoptic_path is not None:
         scene.gt_labels(0)
+    if opts.check_poses:
+        _check_pose_convention(scene, frames[0].pose_source, opts)
     return scene
+
+
+def _check_pose_convention(scene: Scene, pose_source: Path, opts: WriteOptions) -> None:
+    """Stop with one line when the written poses fit the images only after a convention fix
+    (:func:`lift3d.sfm.pose_check.check_pose_convention`; depth maps, or keypoints, of pairs of frames)."""
+    def depth(i: int):
+        frame = scene.frames[i]
+        if frame.depth_path is not None:
+            return scene.depth(i)
+        return scene.gt_depth(i) if frame.gt_depth_path is not None else None
+
+    check = check_pose_convention(scene.cameras, scene.split("train"), scene.image, depth, stored=opts.pose_axes)
+    if check.likely_fix is None:
+        if not check.fits:
+            note(f"the poses fit the images poorly under every convention tried ({check.describe()})")
+        return
+    flag = check.likely_fix.replace(" ", "-")
+    done = f" (after --fix-poses {opts.fix_poses.replace(' ', '-')})" if opts.fix_poses else ""
+    raise InputError(pose_source, f"{FIX_MEANS[check.likely_fix]}{done} ({check.describe()}): convert again with "
+                                  f"--fix-poses {flag} --overwrite (the scene written to {scene.root} has them as read)")
 
 
 def _check_categories(labels: PanopticFrame, cat_ids: set[int]) -> None:

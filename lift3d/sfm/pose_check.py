@@ -66,10 +66,13 @@ SAMPLED_FRAMES = 12
 MIN_MATCHES = 20
 
 
-def with_fix(c2w_opencv: np.ndarray, fix: str) -> np.ndarray:
-    """``[F, 4, 4]`` camera-to-world matrices (OpenCV axes) after ``fix`` (a key of :data:`FIXES`)."""
+def with_fix(c2w_opencv: np.ndarray, fix: str, stored: str = "opencv") -> np.ndarray:
+    """``[F, 4, 4]`` camera-to-world matrices (OpenCV axes) after ``fix`` (a key of :data:`FIXES`), applied to the
+    matrices as the file stored them: ``stored`` is their camera axes (``opencv``, or ``opengl`` as in
+    ``transforms.json``), so that the fix named for a file is the one to apply to that file."""
     apply = FIXES[fix]
-    return np.stack([apply(np.asarray(m, np.float64)) for m in c2w_opencv])
+    axes = np.diag([1.0, -1.0, -1.0, 1.0]) if stored == "opengl" else np.eye(4)  # OpenCV <-> stored (its own inverse)
+    return np.stack([apply(np.asarray(m, np.float64) @ axes) @ axes for m in c2w_opencv])
 
 
 @dataclass
@@ -144,10 +147,7 @@ def check_pose_convention(cameras: Cameras, frames: Sequence[int], image: Callab
     pairs = list(matches)
     if not pairs:
         return PoseCheck("none")
-    written = cameras.c2w_opencv if stored == "opencv" else cameras.c2w
-    axes = np.eye(4) if stored == "opencv" else np.diag([1.0, -1.0, -1.0, 1.0])  # stored -> OpenCV camera axes
-    variants = {"as written": cameras.c2w_opencv,
-                **{m: with_fix(written, m) @ axes for m in FIXES}}
+    variants = {"as written": cameras.c2w_opencv, **{m: with_fix(cameras.c2w_opencv, m, stored) for m in FIXES}}
     depths = {i: depth(i) for i in {f for p in pairs for f in p}} if depth is not None else {}
     if depths and all(d is not None and (d > 0).mean() > 0.2 for d in depths.values()):
         errors = {name: _depth_error(cameras, c2w, pairs, depths) for name, c2w in variants.items()}
