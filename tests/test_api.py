@@ -116,6 +116,17 @@ def test_query_points_at_exported_points_give_the_exported_labels(run, tiny_run,
     assert (q["instance"][pts.instance > 0] > 0).all() and (pts.instance[q["instance"] == 0] == 0).all()
 
 
+def test_the_export_keeps_the_fields_own_labels_that_query_points_gives(run, tiny_run, tmp_path):
+    # with every step on: the export's final labels differ from the field's where its steps relabel, and
+    # field_semantic / field_instance say what the field itself says there
+    export_run(tiny_run, tmp_path, pointcloud=True, num_points=3000, device="cpu")
+    pts = lift3d.load_labelled_points(tmp_path)
+    q = run.query_points(pts.xyz)
+    assert pts.field_semantic is not None and pts.field_instance is not None
+    assert np.mean(q["semantic"] == pts.field_semantic) >= 0.99
+    assert np.mean(q["instance"] == pts.field_instance) >= 0.99
+
+
 def test_bad_input_is_a_value_error_naming_the_argument(run):
     with pytest.raises(InputError, match="xyz: expected an \\(N, 3\\) array"):
         run.query_points(np.zeros((4, 2)))

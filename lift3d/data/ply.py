@@ -31,6 +31,7 @@ VERTEX_FIELDS = {
     "nx": "f4", "ny": "f4", "nz": "f4",
     "red": "u1", "green": "u1", "blue": "u1",
     "semantic": "i4", "instance": "i4", "confidence": "f4",
+    "field_semantic": "i4", "field_instance": "i4",
 }
 
 
@@ -46,6 +47,8 @@ def write_labelled_ply(
     faces: np.ndarray | None = None,
     comments: list[str] | None = None,
     names: dict[str, str] | None = None,
+    field_semantic: np.ndarray | None = None,
+    field_instance: np.ndarray | None = None,
 ) -> None:
     """Write a (labelled) point cloud or triangle mesh as binary PLY, atomically.
 
@@ -70,6 +73,9 @@ def write_labelled_ply(
     names : dict, optional
         Property renames, e.g. :data:`CLOUDCOMPARE_NAMES` (``semantic`` → ``scalar_semantic``: CloudCompare
         loads only vertex properties named ``scalar_*`` as scalar fields).
+    field_semantic, field_instance : np.ndarray, optional
+        ``[N]`` the field's own class and instance channel at each point (what ``lift3d.load_run(...)
+        .query_points`` gives there), beside the export's final ``semantic`` / ``instance`` (stored as int32).
 
     Examples
     --------
@@ -90,7 +96,8 @@ def write_labelled_ply(
         if rgb.dtype != np.uint8:
             rgb = np.clip(np.round(rgb * 255.0), 0, 255).astype(np.uint8)
         cols.update(red=rgb[:, 0], green=rgb[:, 1], blue=rgb[:, 2])
-    for name, arr in (("semantic", semantic), ("instance", instance), ("confidence", confidence)):
+    for name, arr in (("semantic", semantic), ("instance", instance), ("confidence", confidence),
+                      ("field_semantic", field_semantic), ("field_instance", field_instance)):
         if arr is not None:
             cols[name] = np.asarray(arr).reshape(n)
     names = names or {}
@@ -118,7 +125,8 @@ def read_labelled_ply(path: str | Path) -> dict[str, np.ndarray]:
     -------
     dict
         ``xyz`` ``[N, 3]`` float32 and, when present, ``rgb`` ``[N, 3]`` uint8, ``normals``,
-        ``semantic``/``instance`` ``[N]`` int32, ``confidence`` ``[N]`` float32, ``faces`` ``[M, 3]`` int32,
+        ``semantic``/``instance`` ``[N]`` int32, ``confidence`` ``[N]`` float32, ``field_semantic`` /
+        ``field_instance`` ``[N]`` int32 (the field's own labels, in lift3d's exports), ``faces`` ``[M, 3]`` int32,
         and ``comments`` (list of header comments).
     """
     path = Path(path)
@@ -140,8 +148,9 @@ def read_labelled_ply(path: str | Path) -> dict[str, np.ndarray]:
         out["rgb"] = np.stack([v["red"], v["green"], v["blue"]], -1).astype(np.uint8)
     if {"nx", "ny", "nz"} <= set(names):
         out["normals"] = np.stack([v["nx"], v["ny"], v["nz"]], -1).astype(np.float32)
-    for name, dt in (("semantic", np.int32), ("instance", np.int32), ("confidence", np.float32)):
-        for key in (name, CLOUDCOMPARE_NAMES[name]):
+    for name, dt in (("semantic", np.int32), ("instance", np.int32), ("confidence", np.float32),
+                     ("field_semantic", np.int32), ("field_instance", np.int32)):
+        for key in (name, CLOUDCOMPARE_NAMES.get(name, name)):
             if key in names:
                 values = np.asarray(v[key])
                 # CloudCompare saves scalar fields as float32: ids round to their integer value.

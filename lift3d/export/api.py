@@ -46,6 +46,10 @@ class LabelledPointCloud:
         ``[N]`` int32 instance ids (0 = stuff / no instance).
     confidence : np.ndarray or None
         ``[N]`` float32 probability of the chosen class.
+    field_semantic, field_instance : np.ndarray or None
+        ``[N]`` int32 the field's own class and instance channel at each point, before the export's steps
+        relabelled it (what ``lift3d.load_run(...).query_points`` gives there; docs/api.md); None in files
+        without them.
     classes : dict[int, Category]
         From ``classes.json`` beside the file (empty when absent).
     metadata : dict
@@ -59,6 +63,8 @@ class LabelledPointCloud:
     instance: np.ndarray
     confidence: np.ndarray | None
     classes: dict[int, Category] = field(default_factory=dict)
+    field_semantic: np.ndarray | None = None
+    field_instance: np.ndarray | None = None
     metadata: dict[str, Any] = field(default_factory=dict)
     path: Path | None = None
 
@@ -174,7 +180,8 @@ def load_labelled_points(path: str | Path) -> LabelledPointCloud:
         if "semantic" not in d:
             raise InputError(p, "no 'semantic' vertex property: not a labelled point cloud")
         data = {"xyz": d["xyz"], "rgb": d.get("rgb"), "semantic": d["semantic"],
-                "instance": d.get("instance", np.zeros(n, np.int32)), "confidence": d.get("confidence")}
+                "instance": d.get("instance", np.zeros(n, np.int32)), "confidence": d.get("confidence"),
+                "field_semantic": d.get("field_semantic"), "field_instance": d.get("field_instance")}
     classes_path, metadata_path = p.parent / "classes.json", p.parent / "metadata.json"
     classes = {c.id: c for c in read_class_table(classes_path)} if classes_path.is_file() else {}
     metadata = read_json(metadata_path) if metadata_path.is_file() else {}

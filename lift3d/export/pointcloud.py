@@ -151,7 +151,9 @@ def extract_labelled_points(loaded: LoadedRun, scene: Scene, settings: PointSett
     return LabelledPoints(
         xyz=np.asarray(p.xyz, np.float32), rgb=np.asarray(p.rgb, np.uint8), semantic=np.asarray(p.semantic, np.int32),
         instance=np.asarray(instance, np.int32), confidence=np.asarray(p.confidence, np.float32), frame=p.frame,
-        transform=transform, thresholds=p.thresholds, stats=stats, steps=step_records(settings.steps, records))
+        transform=transform, thresholds=p.thresholds, stats=stats, steps=step_records(settings.steps, records),
+        field_semantic=np.asarray(p.field_semantic if p.field_semantic is not None else np.zeros(len(p)), np.int32),
+        field_channel=np.asarray(p.field_channel if p.field_channel is not None else np.zeros(len(p)), np.int32))
 
 
 # ------------------------------------------------------------------------------------------ benchmark

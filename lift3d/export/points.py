@@ -22,7 +22,8 @@ from lift3d.errors import InputError
 
 #: The per-point arrays of :class:`LabelledPoints`: what :meth:`~LabelledPoints.take` and
 #: :meth:`~LabelledPoints.append` carry along (those that are set).
-POINT_ARRAYS = ("xyz", "rgb", "semantic", "instance", "confidence", "channel", "filled", "dirs")
+POINT_ARRAYS = ("xyz", "rgb", "semantic", "instance", "confidence", "channel", "filled", "dirs", "field_semantic",
+                "field_channel")
 
 
 @dataclass
@@ -61,6 +62,10 @@ class LabelledPoints:
         On the way: ``[N]`` bool, the point fills a hole of a thing's isosurface (it joins the instance it borders).
     dirs : np.ndarray, optional
         On the way: ``[N, 3]`` the direction a training view sees the point along (the colour head's input).
+    field_semantic, field_channel : np.ndarray, optional
+        ``[N]`` the field's own class and instance channel at the point (the heads' answer, what
+        ``lift3d.load_run(...).query_points`` gives there), kept beside ``semantic`` / ``instance``, which the steps
+        after the heads change.
     steps : list of dict
         What each step did (:meth:`lift3d.utils.steps.StepRecord.to_json`, with its settings): ``metadata.json``'s
         ``steps.points``.
@@ -85,6 +90,8 @@ class LabelledPoints:
     channel: np.ndarray | None = None
     filled: np.ndarray | None = None
     dirs: np.ndarray | None = None
+    field_semantic: np.ndarray | None = None
+    field_channel: np.ndarray | None = None
     steps: list[dict[str, Any]] = field(default_factory=list)
 
     def __len__(self) -> int:

@@ -9,7 +9,7 @@ them in order with :func:`run_point_steps`.
 from __future__ import annotations
 
 import dataclasses
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import Any, ClassVar
 
 import numpy as np
@@ -59,6 +59,15 @@ class StepContext:
     def world(self, points: LabelledPoints) -> np.ndarray:
         """``[N, 3]`` the points in the cameras' world frame, whatever frame they are in."""
         return points.xyz if points.frame == "world" else to_frame(points.xyz, self.transform, "world")
+
+    def with_field_labels(self, points: LabelledPoints) -> LabelledPoints:
+        """``points`` with ``field_semantic`` / ``field_channel`` the field's own labels at their positions (for points
+        a step made or moved after the heads ran; unchanged when the heads have not run yet)."""
+        if points.field_semantic is None or not len(points):
+            return points
+        x = self.loaded.norm.to_normalized(self.world(points)).astype(np.float32)
+        labels = self.loaded.model.query_labels(x)
+        return replace(points, field_semantic=labels.semantic, field_channel=labels.channel)
 
     def to_output(self, length: float, points: LabelledPoints) -> float:
         """A length in normalised units, in the units of the points' frame."""

@@ -200,6 +200,8 @@ class VoxelDownsample(ExportStep):
         xyz, rgb, semantic, channel, confidence = voxel_downsample_majority(p.xyz, p.rgb, p.semantic, p.channel,
                                                                             p.confidence, self.voxel_size)
         filled = p.filled[cKDTree(p.xyz).query(xyz)[1]] if p.filled.any() else np.zeros(len(xyz), bool)
-        state.points = replace(p, xyz=xyz, rgb=rgb, semantic=semantic, channel=channel, confidence=confidence,
-                               filled=filled)
+        state.points = context.with_field_labels(replace(
+            p, xyz=xyz, rgb=rgb, semantic=semantic, channel=channel, confidence=confidence, filled=filled,
+            field_semantic=None if p.field_semantic is None else np.zeros(len(xyz), np.int32),
+            field_channel=None if p.field_channel is None else np.zeros(len(xyz), np.int32)))
         return {"voxels": len(xyz)}

@@ -25,7 +25,8 @@ class LabelHeads(ExportStep):
         p = state.points
         labels = context.loaded.model.query_labels(p.xyz.astype(np.float32), p.dirs, progress=context.progress)
         state.points = replace(p, rgb=labels.rgb if p.rgb is None else p.rgb, semantic=labels.semantic,
-                               channel=labels.channel, confidence=labels.confidence, dirs=None)
+                               channel=labels.channel, confidence=labels.confidence, dirs=None,
+                               field_semantic=labels.semantic.copy(), field_channel=labels.channel.copy())
         return {"labelled": len(p)}
 
 

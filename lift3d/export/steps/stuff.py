@@ -90,10 +90,11 @@ class StuffCorners(ExportStep):
             threshold=self.plane_threshold * diag, up=up, min_plane_share=self.min_plane_share,
             min_angle=self.min_angle, max_points=self.max_points)
         if len(source):
-            # the projections carry their point's colour, instance channel and confidence
+            # the projections carry their point's colour, instance channel and confidence; the field's own labels
+            # (field_semantic, field_channel) are the field's at the projections, as everywhere else
             moved = replace(p.take(source), xyz=new_xyz.astype(p.xyz.dtype),
                             semantic=new_semantic.astype(p.semantic.dtype))
-            p = p.take(keep).append(moved)
+            p = p.take(keep).append(context.with_field_labels(moved))
         # The projections honour the crop box and the voxel size: none outside the box, one point per voxel.
         keep = state.crop.contains(p.xyz) if state.crop is not None else np.ones(len(p), bool)
         if state.voxel_size > 0:

@@ -16,7 +16,8 @@ from lift3d.export.writers import ExportContext, ExportWriter, register
 @register
 class PlyWriter(ExportWriter):
     name = "ply"
-    help = "points.ply: float32 x y z, uchar rgb, int32 semantic/instance, float32 confidence"
+    help = ("points.ply: float32 x y z, uchar rgb, int32 semantic/instance, float32 confidence, int32 "
+            "field_semantic/field_instance (the field's own labels)")
     files = ("points.ply",)
 
     def write(self, ctx: ExportContext) -> list[str]:
@@ -24,7 +25,8 @@ class PlyWriter(ExportWriter):
             return []
         p = ctx.points
         write_labelled_ply(ctx.out / "points.ply", p.xyz, rgb=p.rgb, semantic=p.semantic, instance=p.instance,
-                           confidence=p.confidence, comments=ctx.comments)
+                           confidence=p.confidence, comments=ctx.comments, field_semantic=p.field_semantic,
+                           field_instance=p.field_channel)
         return ["points.ply"]
 
 
