@@ -70,7 +70,8 @@ def make_room(up: str = "z"):
     if up == "y":  # the same room in a y-up frame: (x, y, z) -> (x, z, -y)
         xyz = np.stack([xyz[:, 0], xyz[:, 2], -xyz[:, 1]], -1)
         up_vec = np.array([0.0, 1.0, 0.0])
-    return SimpleNamespace(xyz=xyz, semantic=semantic, instance=instance, rgb=rgb, confidence=confidence), up_vec
+    return SimpleNamespace(xyz=xyz, semantic=semantic, instance=instance, rgb=rgb, confidence=confidence,
+                           field_semantic=None, field_channel=None), up_vec
 
 
 def make_context(out: Path, up: str = "z", **options) -> ExportContext:
