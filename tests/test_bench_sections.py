@@ -48,3 +48,14 @@ def test_bench_quick_curves_ablation_bounded(tmp_path, monkeypatch):
         assert title in md, title
     assert "| base → base+S | equal steps |" in md
     assert json.loads((out / "results.json").read_text())["summary"]["ablation_steps"]
+
+
+def test_regenerating_the_page_keeps_what_was_measured_outside_the_benchmark():
+    from lift3d.bench.runner import KEPT_BEGIN, KEPT_END, PAGE_SECTIONS, kept_block, with_kept_block
+
+    block = f"{KEPT_BEGIN}\n### Real captures\n\n| a | b |\n{KEPT_END}"
+    old = f"# Benchmarks\n\n{PAGE_SECTIONS[1]}\n\nold\n\n{block}\n\n{PAGE_SECTIONS[2]}\n\nslow\n"
+    new = f"# Benchmarks\n\n{PAGE_SECTIONS[1]}\n\nnew\n\n{PAGE_SECTIONS[2]}\n\nfast\n"
+    page = with_kept_block(new, kept_block(old))
+    assert page.index("new") < page.index("### Real captures") < page.index(PAGE_SECTIONS[2]) < page.index("fast")
+    assert with_kept_block(new, kept_block(new)) == new  # nothing kept, nothing added

@@ -784,7 +784,34 @@ def write_reports(results: dict, cfg: BenchConfig) -> None:
         for key, p in pictures.items():
             (images / f"bench_{key}.png").write_bytes(p.read_bytes())
         md_docs = benchmarks_markdown(results, {k: f"images/bench_{k}.png" for k in pictures})
-        write_text_atomic(cfg.docs_dir / "benchmarks.md", md_docs)
+        page = cfg.docs_dir / "benchmarks.md"
+        kept = kept_block(page.read_text(encoding="utf-8")) if page.is_file() else ""
+        write_text_atomic(page, with_kept_block(md_docs, kept))
+
+
+#: Marks the part of docs/benchmarks.md measured outside ``lift3d bench`` (real captures, room shapes; each with
+#: the commands that measure it): regenerating the page keeps it, under "How good".
+KEPT_BEGIN, KEPT_END = "<!-- measured outside lift3d bench: begin -->", "<!-- measured outside lift3d bench: end -->"
+
+
+def kept_block(page: str) -> str:
+    r"""The marked block of ``page`` (markers included), or "".
+
+    Examples
+    --------
+    >>> kept_block(f"a\n{KEPT_BEGIN}\nkept\n{KEPT_END}\nb") == f"{KEPT_BEGIN}\nkept\n{KEPT_END}"
+    True
+    """
+    start, end = page.find(KEPT_BEGIN), page.find(KEPT_END)
+    return page[start:end + len(KEPT_END)] if 0 <= start < end else ""
+
+
+def with_kept_block(page: str, block: str) -> str:
+    """``page`` with ``block`` at the end of its "How good" section (before "How fast")."""
+    if not block:
+        return page
+    at = page.find("\n" + PAGE_SECTIONS[2])
+    return page[:at] + "\n\n" + block + "\n" + page[at:] if at >= 0 else page + "\n" + block + "\n"
 
 
 #: results.csv: one row per run and section it serves (a shared run is in several sections), per seed.
