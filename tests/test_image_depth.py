@@ -297,3 +297,21 @@ def test_plane_sweep_depths_few_views_confirmed_are_left_out_of_the_plane_fit_wh
     assert len(dense_points(scene, recorded, labels, min_support=0)[0]) == depth.size
     unrecorded = DenseDepth(["f0"], [depth], [np.full_like(depth, 0.01)])
     assert len(dense_points(scene, unrecorded, labels, min_support=2)[0]) == depth.size
+
+
+def test_plane_fit_takes_the_sweeps_depths_at_the_resolution_it_matched(tmp_path):
+    from lift3d.data.stereo import DenseDepth
+    from lift3d.train.target_steps.plane_rules import dense_points
+
+    gt = textured_plane_scene(tmp_path / "s", n=2)
+    scene = load_scene(tmp_path / "s")
+    depth = gt[0].astype(np.float32)
+    h, w = depth.shape
+    labels = {0: np.full(depth.shape, 7, np.int64)}
+    maps = DenseDepth(["f0"], [depth], [np.full_like(depth, 0.01)])
+    every = dense_points(scene, maps, labels, min_support=0)[0]
+    # a cap of half the longer side: every 2nd pixel of each row and column, still on the floor
+    half = dense_points(scene, maps, labels, min_support=0, max_size=max(h, w) // 2)[0]
+    assert len(half) == (h // 2) * (w // 2)  # the centre pixel of each 2 x 2 block
+    assert np.allclose(half[:, 2], 0.0, atol=1e-4) and len(half) < len(every)
+    assert len(dense_points(scene, maps, labels, min_support=0, max_size=max(h, w))[0]) == len(every)

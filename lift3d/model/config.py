@@ -334,6 +334,12 @@ class ImageDepthConfig:
     capture only one other view sees a point) give objects their targets but are not fitted to planes (the plane
     fit is sensitive to its points: on the tuning rooms fitting those too moved the walls' good targets 0.9456 ->
     0.9389 and lost room 12's window plane). 0 fits every depth."""
+    plane_fit_max_size: int = 256
+    """``planes``: the plane-sweep depths that the planes are fitted to (each one also a sight line of the fit's
+    free-space test) are taken on a grid of at most this many pixels along a view's longer side. The sweep
+    matches images at ``sfm.dense.max_size`` (256) and upsamples its maps to the image: at 640 × 480 every fourth
+    pixel of each row and column is what it matched, the rest add time and memory only (184 such views: fitting
+    every pixel took > 10 min and 11 GB). 0 takes every pixel."""
     plane_stride: int = 4
     """``planes``: a target at every ``plane_stride``-th pixel of each row and column (planes cover most of a
     view; denser targets would crowd out the sparse points on objects when target rays are drawn)."""

@@ -41,6 +41,9 @@ class FitPlanes(TargetStep):
     """How far a plane reaches beyond its points' hull, as a share of the diagonal."""
     min_support: int = setting("plane_min_support")
     """Plane-sweep depths fewer source views confirmed are not fitted."""
+    max_size: int = setting("plane_fit_max_size")
+    """The plane-sweep depths are taken on a grid of at most this many pixels along a view's longer side (0: every
+    pixel)."""
     point_share: float = setting("plane_fit_point_share")
     """A point takes its observations' majority class when this share of them agree."""
     max_planes: int = setting("plane_fit_max_planes")
@@ -73,7 +76,7 @@ class FitPlanes(TargetStep):
         xyz = [sparse.xyz]
         cls = [point_classes(sparse.obs_point, obs_class, len(sparse), min_share=self.point_share)]
         cams, seen_xyz = [scene.cameras.centers[sparse.obs_frame]], [sparse.xyz[sparse.obs_point]]
-        p, c, o = dense_points(scene, context.dense, labels, self.min_support)
+        p, c, o = dense_points(scene, context.dense, labels, self.min_support, max_size=self.max_size)
         xyz.append(p), cls.append(c), cams.append(o), seen_xyz.append(p)
         xyz, cls = np.concatenate(xyz), np.concatenate(cls).astype(np.int64)
         state.points, state.classes = self.thin(xyz, cls, context.diag)
@@ -377,10 +380,12 @@ class MarginSeenThrough(TargetStep):
         return {}
 
 
-def dense_points(scene: Scene, dense: DenseDepth, labels: dict[int, np.ndarray], min_support: int
-                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def dense_points(scene: Scene, dense: DenseDepth, labels: dict[int, np.ndarray], min_support: int, *,
+                 max_size: int = 0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The plane sweep's depths as world points ``[N, 3]``, their pixels' classes ``[N]`` and their cameras'
-    centres ``[N, 3]``, leaving out depths fewer than ``min_support`` source views confirmed (when recorded)."""
+    centres ``[N, 3]``, leaving out depths fewer than ``min_support`` source views confirmed (when recorded).
+    With ``max_size`` > 0 a view's depths are taken at every k-th pixel of each row and column (the centre one
+    of each k × k block), k the smallest stride that leaves at most ``max_size`` pixels along its longer side."""
     index = {f.name: k for k, f in enumerate(scene.frames)}
     supports = dense.support if dense.support is not None else [None] * len(dense)
     xyz, cls, cams = [np.zeros((0, 3))], [np.zeros(0, np.int64)], [np.zeros((0, 3))]
@@ -390,6 +395,11 @@ def dense_points(scene: Scene, dense: DenseDepth, labels: dict[int, np.ndarray],
         use = depth > 0
         if support is not None:
             use &= np.asarray(support) >= min_support
+        stride = max(1, -(-max(depth.shape) // max_size)) if max_size > 0 else 1
+        if stride > 1:
+            grid = np.zeros_like(use)
+            grid[stride // 2::stride, stride // 2::stride] = True
+            use &= grid
         r, c = np.nonzero(use)
         if not len(r):
             continue
