@@ -707,8 +707,11 @@ def test_eval_without_3d_gt_scores_the_export_against_the_depth_maps(trained, tm
     assert geometry3d(gt, gt, g["tau"])["fscore"] == 1.0
     d = m["depth"]
     assert 0.0 <= d["share_over_0.1"] <= 1.0 and d["mae_of_diagonal"] == pytest.approx(d["mae"] / d["diagonal"])
+    # the points off the surface are placed in front of it, behind it or out of view: 1 - precision in all
+    off = g["imprecise"]
+    assert sum(off.values()) == pytest.approx(1.0 - g["precision"], abs=1e-3)
     table = format_eval_table(json_safe(m))
-    assert "3D geometry" in table and "% of the diagonal" in table
+    assert "3D geometry" in table and "% of the diagonal" in table and "in front of it" in table
 
 
 def test_eval_reports_3d_iou_per_class_and_the_smallest_objects(trained, evaluated):

@@ -471,11 +471,49 @@ def geometry_from_depth_block(points, scene: Scene, frames: Sequence[int]) -> di
     if not len(gt):
         raise InputError(scene.root / "transforms.json", "the scored frames' depth maps hold no depth")
     tau = 0.01 * float(np.linalg.norm(gt.max(0) - gt.min(0)))
-    block = geometry3d(np.asarray(points.xyz, np.float64), gt, tau)
+    xyz = np.asarray(points.xyz, np.float64)
+    block = geometry3d(xyz, gt, tau)
     block.pop("_gt_to_pred")
+    off = block.pop("_pred_to_gt") > tau
     block.update(reference=depth_reference(scene, frames), frames=len(frames),
-                 source=f"export.{points.stats.get('source', DEFAULT_SOURCE)}")
+                 source=f"export.{points.stats.get('source', DEFAULT_SOURCE)}",
+                 imprecise=where_off_surface(xyz[off], scene, frames, tau, total=len(xyz)))
     return block
+
+
+def where_off_surface(xyz: np.ndarray, scene: Scene, frames: Sequence[int], tau: float, *, total: int) -> dict:
+    """Where the points that miss the reference surface (farther than ``tau`` from every depth point) lie, seen
+    from the scored frames, as shares of ``total`` points: ``in_front`` of the surface in some frame (floaters, or a
+    surface rendered too near: they would hide what the camera saw), else ``behind`` it in every frame whose depth
+    covers their pixel (a surface placed too far, or one that is hidden in the capture), else ``unobserved`` (no
+    scored frame's depth covers them). The three add up to 1 - precision.
+
+    Examples
+    --------
+    >>> from lift3d.data.cameras import Cameras
+    >>> from types import SimpleNamespace
+    >>> cams = Cameras(c2w=np.eye(4)[None], fx=2.0, fy=2.0, cx=2.0, cy=2.0, width=4, height=4)
+    >>> scene = SimpleNamespace(cameras=cams, frames=[SimpleNamespace(gt_depth_path="d")],
+    ...                         gt_depth=lambda i: np.full((4, 4), 2.0, np.float32))
+    >>> pts = np.array([[0.0, 0, -1], [0.0, 0, -3], [0.0, 0, 5]])  # OpenGL camera: it looks down -z
+    >>> where_off_surface(pts, scene, [0], tau=0.1, total=4)
+    {'in_front': 0.25, 'behind': 0.25, 'unobserved': 0.25}
+    """
+    front = np.zeros(len(xyz), bool)
+    covered = np.zeros(len(xyz), bool)
+    reference = depth_reference(scene, frames)
+    for i in frames:
+        depth = scene.gt_depth(int(i)) if reference == "gt_depth" else scene.depth(int(i))
+        uv, z = scene.cameras.project(int(i), xyz)
+        col, row = np.floor(np.nan_to_num(uv, nan=-1.0)).astype(np.int64).T
+        inside = (z > 0) & (col >= 0) & (col < depth.shape[1]) & (row >= 0) & (row < depth.shape[0])
+        seen_z = np.zeros(len(xyz))
+        seen_z[inside] = depth[row[inside], col[inside]]
+        inside &= np.isfinite(seen_z) & (seen_z > 0)
+        covered |= inside
+        front |= inside & (z < seen_z - tau)
+    share = (lambda m: round(float(m.sum()) / total, 4)) if total else (lambda m: 0.0)
+    return {"in_front": share(front), "behind": share(covered & ~front), "unobserved": share(~covered)}
 
 
 # --------------------------------------------------------------------------------------- speed

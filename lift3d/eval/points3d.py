@@ -159,6 +159,7 @@ def points3d(
 
     geo = geometry3d(px, gx, tau)
     d_gt, nn = geo.pop("_gt_to_pred")
+    geo.pop("_pred_to_gt")
     # label transfer: nearest prediction within tau, else void.
     reach = d_gt <= tau
     t_sem = np.zeros(m, dtype=np.int64)
@@ -209,8 +210,9 @@ def points3d(
 def geometry3d(pred_xyz, gt_xyz, tau: float) -> dict:
     """Geometry of a predicted point cloud against GT points: ``accuracy`` (mean distance from each predicted
     point to the GT), ``completeness`` (from each GT point to the prediction), ``chamfer`` (their mean),
-    ``precision`` / ``recall`` (shares within ``tau``), ``fscore``, ``tau``, ``n_pred``, ``n_gt``; and, under
-    ``_gt_to_pred``, each GT point's distance to and index of its nearest predicted point (for label transfer).
+    ``precision`` / ``recall`` (shares within ``tau``), ``fscore``, ``tau``, ``n_pred``, ``n_gt``; under
+    ``_gt_to_pred``, each GT point's distance to and index of its nearest predicted point (for label transfer), and
+    under ``_pred_to_gt`` each predicted point's distance to the GT (callers pop both).
 
     Examples
     --------
@@ -222,6 +224,7 @@ def geometry3d(pred_xyz, gt_xyz, tau: float) -> dict:
     gx, px = _xyz(gt_xyz, "gt_xyz"), _xyz(pred_xyz, "pred_xyz")
     n = len(px)
     d_gt, nn = nearest_distances(gx, cKDTree(px) if n else None)  # GT -> prediction
+    d_pred = np.zeros(0)
     if n:
         d_pred, _ = nearest_distances(px, cKDTree(gx))  # prediction -> GT
         accuracy, completeness, precision = float(d_pred.mean()), float(d_gt.mean()), float(np.mean(d_pred <= tau))
@@ -232,7 +235,7 @@ def geometry3d(pred_xyz, gt_xyz, tau: float) -> dict:
     fscore = 0.0 if precision + recall == 0 else 2 * precision * recall / (precision + recall)
     return {"accuracy": accuracy, "completeness": completeness, "chamfer": 0.5 * (accuracy + completeness),
             "precision": precision, "recall": recall, "fscore": float(fscore), "tau": float(tau), "n_pred": int(n),
-            "n_gt": int(len(gx)), "_gt_to_pred": (d_gt, nn)}
+            "n_gt": int(len(gx)), "_gt_to_pred": (d_gt, nn), "_pred_to_gt": d_pred}
 
 
 def instance_recall(pred_inst, gt_sem, gt_inst, things, min_points: int = 500) -> tuple[int, int]:

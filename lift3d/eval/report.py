@@ -135,6 +135,11 @@ def format_eval_table(m: dict) -> str:
                      f"{fmt(g.get('accuracy'))}, completeness {fmt(g.get('completeness'))}, Chamfer "
                      f"{fmt(g.get('chamfer'))}, F-score {fmt(g.get('fscore'))} (P {fmt(g.get('precision'))}, "
                      f"R {fmt(g.get('recall'))})")
+        off = g.get("imprecise")
+        if off:
+            lines.append(f"3D points off the reference surface: {fmt(off.get('in_front'))} in front of it (floaters), "
+                         f"{fmt(off.get('behind'))} behind it in every frame that sees their pixel, "
+                         f"{fmt(off.get('unobserved'))} seen by no scored frame")
     t = m.get("render_timing")
     if t:
         th = t.get("threads")
