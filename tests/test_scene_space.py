@@ -198,3 +198,6 @@ def test_training_records_the_profile_and_its_premises_reach_the_depth_targets(r
     assert profile["name"] in ("manhattan-room", "room") and "box" not in profile["premises"], profile
     assert targets["premises"] == sorted(profile["premises"]) and targets["source"] == "planes"
     assert saved["pose_check"]["likely_fix"] is None and saved["why_bounded"].startswith("points triangulated")
+    # where the time before the first step went, stage by stage
+    assert set(saved["setup_seconds"]) == {"pose_check", "triangulation", "plane_sweep", "depth_targets"}
+    assert all(v >= 0 for v in saved["setup_seconds"].values())

@@ -10,7 +10,8 @@ handed on (:func:`lift3d.train.image_depth.image_depth_targets`'s ``sparse``). A
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+import time
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -31,6 +32,8 @@ class SceneGeometry:
     content: ContentPoints | None = None
     sparse: SparsePoints | None = None
     dense: DenseDepth | None = None
+    seconds: dict[str, float] = field(default_factory=dict)
+    """Wall time of each stage that ran: ``triangulation`` (or reading the scene's sparse points), ``plane_sweep``."""
 
 
 #: Every this-many-th pixel of a plane-sweep map becomes a content point (a map of 128² holds ~10 000 depths).
@@ -61,18 +64,23 @@ def scene_content(scene: Scene, cfg: Config, progress: bool = False) -> SceneGeo
                     and cfg.image_depth.source != "none")
     if scene.sparse_points_paths is None and not wants_points:
         return SceneGeometry()
+    started = time.perf_counter()
     sparse, origin = scene_sparse_points(scene, train, cache=None, progress=progress)
+    seconds = {"triangulation": round(time.perf_counter() - started, 2)}
     if not len(sparse):
-        return SceneGeometry(None, sparse)
+        return SceneGeometry(None, sparse, seconds=seconds)
     source = "points triangulated from the training images" if origin == "triangulated" else f"sparse points, {origin}"
     content = ContentPoints(np.asarray(sparse.xyz, np.float64), source)
     requested = cfg.image_depth.source
     if not wants_points or requested == "sparse" or (requested == "auto" and looks_outdoor(scene, content)):
-        return SceneGeometry(content, sparse)
+        return SceneGeometry(content, sparse, seconds=seconds)
+    started = time.perf_counter()
     dense, _ = scene_dense_maps(scene, train, sparse, cache=None, progress=progress)
+    seconds["plane_sweep"] = round(time.perf_counter() - started, 2)
     index = {f.name: k for k, f in enumerate(scene.frames)}
     xyz = [content.xyz] + [_map_points(scene, index[name], d) for name, d in zip(dense.frame_names, dense.depth)]
-    return SceneGeometry(ContentPoints(np.concatenate(xyz), source + " and their plane-sweep depths"), sparse, dense)
+    return SceneGeometry(ContentPoints(np.concatenate(xyz), source + " and their plane-sweep depths"), sparse, dense,
+                         seconds)
 
 
 def looks_outdoor(scene: Scene, content: ContentPoints) -> bool:

@@ -195,6 +195,8 @@ class Trainer:
                                           sparse=geometry.sparse if geometry else None,
                                           dense=geometry.dense if geometry else None)
             cfg.scene["image_depth"] = json_safe(targets.info)
+            if "setup_seconds" in cfg.scene and "seconds" in targets.info:
+                cfg.scene["setup_seconds"]["depth_targets"] = targets.info["seconds"]
             if "room_evidence" in targets.info:  # the stuff planes said whether the room is square, fills its box
                 cfg.scene["profile"] = refined_profile(profile, targets.info["premises"], targets.info["room_evidence"])
         self.data = TrainingData(scene, scene.split("train"), self.rays, labels, progress=self.progress,
@@ -520,13 +522,17 @@ def _train(data, preset, output_dir, overrides, resume, progress, print_summary,
         if data is None:
             raise InputError("--data", "a scene folder is required (or --resume RUN)")
         scene = _labelled_scene(data)
+        started = time.perf_counter()
         pose_check = check_poses(scene)  # a pose file read with the wrong convention stops here, in one line
+        pose_seconds = round(time.perf_counter() - started, 2)
         # The points that say where the surfaces are size the scene space; triangulated ones are the depth
         # targets' starting points too (handed on below, not computed twice).
         geometry = scene_content(scene, load_config(preset, "indoor", overrides), progress and ctx.is_main)
         content = geometry.content
         cfg, norm = resolve_config(scene, preset, overrides, content)
         cfg.scene["pose_check"] = pose_check
+        # where the time before the first step goes (depth_targets joins it when the trainer builds them)
+        cfg.scene["setup_seconds"] = {"pose_check": pose_seconds, **geometry.seconds}
         # Which priors may run: from what the scene shows (or --profile), with the evidence, in config.yml.
         cfg.scene["profile"] = choose_profile(scene, norm, content, cfg.data.profile).to_json()
         resolve_device(device_name if ctx.enabled else cfg.trainer.device)  # a bad --device leaves no empty run
