@@ -47,9 +47,9 @@ import numpy as np
 from lift3d.convert import FrameInput, WriteOptions, every_nth, note, split_every, write_scene
 from lift3d.convert.predictions import PredictionFolder
 from lift3d.convert.scannet import natural_key
-from lift3d.data.cameras import is_rigid, opengl_to_opencv
+from lift3d.data.cameras import opengl_to_opencv
 from lift3d.data.images import read_rgb
-from lift3d.data.scene import Category, Scene
+from lift3d.data.scene import Category, Scene, frame_pose
 from lift3d.errors import InputError
 from lift3d.utils.files import read_json
 
@@ -241,24 +241,6 @@ def camera_of(meta: dict, frame: dict, where: Path, k: int) -> tuple[str, dict[s
     names = ("k1", "k2", "k3", "k4") if fisheye else ("k1", "k2", "p1", "p2", "k3")
     distortion = {key: coeffs[key] for key in names} if any(coeffs[key] for key in names) else {}
     return ("OPENCV_FISHEYE" if fisheye else "OPENCV"), distortion
-
-
-def _pose(frame: dict, where: Path, k: int) -> np.ndarray:
-    """Frame ``k``'s ``transform_matrix`` as a 4x4 rigid camera-to-world (OpenGL axes)."""
-    try:
-        c2w = np.asarray(frame.get("transform_matrix"), dtype=np.float64)
-    except (TypeError, ValueError):
-        raise InputError(where, f"frames[{k}].transform_matrix: not a 4x4 matrix of numbers") from None
-    if c2w.shape == (3, 4):
-        c2w = np.vstack([c2w, [0.0, 0.0, 0.0, 1.0]])
-    if c2w.shape != (4, 4):
-        raise InputError(where, f"frames[{k}].transform_matrix: must be 4x4 (got shape {c2w.shape})")
-    if not np.all(np.isfinite(c2w)):
-        raise InputError(where, f"frames[{k}].transform_matrix: not finite")
-    if not is_rigid(c2w, atol=1e-3):
-        raise InputError(where, f"frames[{k}].transform_matrix: not a rigid transform (rotation must be "
-                                "orthonormal with det +1)")
-    return c2w
 
 
 def resolve_image(root: Path, file_path: str) -> Path | None:
@@ -496,7 +478,7 @@ def convert(
         if "mask_path" in frame:
             mask_path, marks_valid = _existing(root, frame["mask_path"], tpath, f"frames[{k}].mask_path"), True
         frames.append(FrameInput(
-            name=image.stem, image_path=image, c2w_opencv=opengl_to_opencv(_pose(frame, tpath, k)),
+            name=image.stem, image_path=image, c2w_opencv=opengl_to_opencv(frame_pose(frame, tpath, k)),
             pose_source=tpath, intrinsics=intrinsics, intrinsics_size=size, labels=_labels_of(preds, image.stem),
             distortion=distortion, depth_path=depth_path, mask_path=mask_path if mask_path.is_file() else None,
             mask_marks_valid=marks_valid,

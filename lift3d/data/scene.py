@@ -450,6 +450,25 @@ def _resolve(root: Path, rel: Any, where: Path, field_name: str, must_exist: boo
     return p
 
 
+def frame_pose(frame: dict, where: Path, k: int) -> np.ndarray:
+    """Frame ``k``'s ``transform_matrix`` as a 4x4 rigid camera-to-world (OpenGL axes; a 3x4 gets its last row),
+    or an :class:`InputError` naming ``where`` and the frame."""
+    try:
+        c2w = np.asarray(frame.get("transform_matrix"), dtype=np.float64)
+    except (TypeError, ValueError):
+        raise InputError(where, f"frames[{k}].transform_matrix: not a 4x4 matrix of numbers") from None
+    if c2w.shape == (3, 4):
+        c2w = np.vstack([c2w, [0.0, 0.0, 0.0, 1.0]])
+    if c2w.shape != (4, 4):
+        raise InputError(where, f"frames[{k}].transform_matrix: must be 4x4 (got shape {c2w.shape})")
+    if not np.all(np.isfinite(c2w)):
+        raise InputError(where, f"frames[{k}].transform_matrix: not finite")
+    if not is_rigid(c2w, atol=1e-3):
+        raise InputError(where, f"frames[{k}].transform_matrix: not a rigid transform (rotation must be "
+                                "orthonormal with det +1)")
+    return c2w
+
+
 def _intrinsics(meta: dict, frame: dict, where: Path, k: int) -> tuple[float, ...]:
     def get(key: str, default: Any = None) -> float:
         if key in frame:
@@ -580,19 +599,7 @@ def cameras_from_transforms(meta: dict, where: Path) -> Cameras:
     for k, fr in enumerate(frames_raw):
         if not isinstance(fr, dict):
             raise InputError(where, f"frames[{k}]: must be an object")
-        try:
-            c2w = np.asarray(fr.get("transform_matrix"), dtype=np.float64)
-        except (TypeError, ValueError):
-            raise InputError(where, f"frames[{k}].transform_matrix: not a 4x4 matrix of numbers") from None
-        if c2w.shape == (3, 4):
-            c2w = np.vstack([c2w, [0, 0, 0, 1]])
-        if c2w.shape != (4, 4):
-            raise InputError(where, f"frames[{k}].transform_matrix: must be 4x4 (got shape {c2w.shape})")
-        if not np.all(np.isfinite(c2w)):
-            raise InputError(where, f"frames[{k}].transform_matrix: not finite")
-        if not is_rigid(c2w, atol=1e-3):
-            raise InputError(where, f"frames[{k}].transform_matrix: not a rigid transform (rotation must be orthonormal with det +1)")
-        c2ws.append(c2w)
+        c2ws.append(frame_pose(fr, where, k))
         intr.append(_intrinsics(meta, fr, where, k))
         coefficients.append(_distortion(meta, fr, where, k))
     camera_model = _camera_model(meta, coefficients, where)
