@@ -390,3 +390,28 @@ def test_cli_writes_every_format_from_a_trained_run(tiny_run, tmp_path, capsys):
     graph = json.loads((out / "scene_graph.json").read_text())
     assert len([n for n in graph["nodes"] if n["kind"] == "object"]) == len(lift3d.instances(out))
     assert not [p.name for p in out.iterdir() if p.name.startswith(".")], "no temporary files left"
+
+
+def test_z_up_turns_every_file_and_says_so(tiny_run, tmp_path, capsys):
+    from lift3d.cli.main import main
+    from lift3d.export.ground import map_frame
+
+    as_is, turned = tmp_path / "as_is", tmp_path / "turned"
+    common = ["export", "--run", str(tiny_run), "--pointcloud", "--mesh", "--resolution", "24", "--num-points",
+              "3000", "--up", "y", "--quiet"]
+    assert main([*common, "--output-dir", str(as_is)]) == 0, capsys.readouterr().err
+    assert main([*common, "--z-up", "--output-dir", str(turned)]) == 0, capsys.readouterr().err
+    rotation = map_frame(np.array([0.0, 1.0, 0.0]))  # a scene whose up were +y: (x, y, z) -> (z, x, y)
+    meta, meta0 = (json.loads((d / "metadata.json").read_text()) for d in (turned, as_is))
+    assert np.allclose(meta["rotation"], rotation) and "rotation" not in meta0
+    assert meta["up"]["axis"] == [0.0, 0.0, 1.0] and meta0["up"]["axis"] == [0.0, 1.0, 0.0]
+    a, b = lift3d.load_labelled_points(as_is), lift3d.load_labelled_points(turned)
+    np.testing.assert_allclose(b.xyz, a.xyz @ rotation.T, atol=1e-5)
+    np.testing.assert_array_equal(b.semantic, a.semantic)
+    from plyfile import PlyData
+
+    mesh, mesh0 = (PlyData.read(str(d / "mesh.ply"))["vertex"].data for d in (turned, as_is))
+    xyz = lambda v: np.stack([v["x"], v["y"], v["z"]], -1)  # noqa: E731
+    np.testing.assert_allclose(xyz(mesh), xyz(mesh0) @ rotation.T, atol=1e-5)
+    boxes, boxes0 = (lift3d.instances(d) for d in (turned, as_is))
+    assert len(boxes) == len(boxes0)

@@ -74,6 +74,9 @@ def add_parser(subparsers, verb: str) -> argparse.ArgumentParser:
     f.add_argument("--up", default="auto", metavar="AXIS",
                    help="the scene's up axis for nav2 and scene_graph.json: auto (from the training cameras), x, "
                         "y, z, -x, -y or -z (default: auto)")
+    f.add_argument("--z-up", action="store_true",
+                   help="write every file in the output frame turned so that the scene's up (--up) is +z, as ROS, "
+                        "PCL and CloudCompare expect (a right-angle rotation, recorded in metadata.json)")
     f.add_argument("--floor-classes", default="", metavar="LIST",
                    help="nav2 / scene graph: comma-separated walkable class names or ids (default: names with "
                         "floor, rug, road, sidewalk, grass, ground, ... in them)")
@@ -132,7 +135,7 @@ def run(args: argparse.Namespace) -> int:
     options = ExportOptions(pcd_ascii=args.pcd_ascii, frame_id=args.frame_id, map_resolution=args.map_resolution,
                             up=args.up, floor_classes=tuple(t.strip() for t in args.floor_classes.split(",")
                                                             if t.strip()),
-                            height_band=tuple(args.height_band) if args.height_band else None)
+                            height_band=tuple(args.height_band) if args.height_band else None, z_up=args.z_up)
     set_threads()
     mesh = MeshSettings(args.resolution, args.split_instances) if args.mesh else False
     summary = export_run(

@@ -52,7 +52,7 @@ from lift3d import __version__
 from lift3d.data.ply import write_labelled_ply
 from lift3d.errors import InputError
 from lift3d.export import json_files
-from lift3d.export.ground import floor_class_ids, resolve_up
+from lift3d.export.ground import floor_class_ids, map_frame, resolve_up
 from lift3d.export.scene_graph import build_scene_graph, write_scene_graph_json
 from lift3d.export.writers import ExportContext, ExportOptions, check_formats
 from lift3d.utils.files import check_writable
@@ -164,6 +164,9 @@ def export_run(run: str | Path, output_dir: str | Path | None = None, *, pointcl
     names = {c["id"]: c["name"] for c in classes}
     # Options that depend on the scene are checked before the (long) extraction.
     up, up_reason = resolve_up(options.up, scene.cameras.c2w)
+    # --z-up: the output frame turned so that up is +z; points and mesh are turned as they come out of extraction,
+    # so that every file, the instances and the scene graph share one frame
+    rotation = map_frame(up) if options.z_up else None
     floor_class_ids(classes, options.floor_classes)
     written: list[str] = []
     summary: dict[str, Any] = {"output_dir": str(out), "files": written}
@@ -174,6 +177,8 @@ def export_run(run: str | Path, output_dir: str | Path | None = None, *, pointcl
     if pointcloud:
         pts = extract_labelled_points(loaded, scene, points, progress=progress, view_depth_cache=view_depths,
                                       device=device)
+        if rotation is not None:
+            pts = dataclasses.replace(pts, xyz=(pts.xyz @ rotation.T).astype(pts.xyz.dtype))
         thresholds["points"] = pts.thresholds
         summary.update(points=len(pts), point_stats=pts.stats)
     if mesh:
@@ -184,6 +189,8 @@ def export_run(run: str | Path, output_dir: str | Path | None = None, *, pointcl
                                          orient_stuff=points.step("stuff-orientation").enabled,
                                          view_vote=points.step("view-vote").enabled,
                                          view_depth_cache=view_depths, progress=progress)
+        if rotation is not None:
+            labelled.vertices = (labelled.vertices @ rotation.T).astype(labelled.vertices.dtype)
         if pts is not None:
             match_instance_ids(labelled, pts.xyz, pts.semantic, pts.instance)
         write_labelled_ply(out / "mesh.ply", labelled.vertices, rgb=labelled.rgb, semantic=labelled.semantic,
@@ -194,6 +201,8 @@ def export_run(run: str | Path, output_dir: str | Path | None = None, *, pointcl
         summary.update(mesh_vertices=int(len(labelled.vertices)), mesh_faces=int(len(labelled.faces)))
         if mesh_settings.split_instances:
             written += _write_instance_meshes(out / "instances", labelled, names)
+    if rotation is not None:
+        up, up_reason = rotation @ up, f"{up_reason}; turned to +z (--z-up)"
     # Instances (and the scene graph) come from the points, or from the mesh vertices with --mesh alone.
     if pts is not None:
         geo = (pts.xyz, pts.semantic, pts.instance, pts.confidence)
@@ -233,6 +242,9 @@ def export_run(run: str | Path, output_dir: str | Path | None = None, *, pointcl
         "transform_note": "x_world = transform @ [x_normalized, 1] (a similarity: uniform scale + translation)",
         "units": units,
         "up": {"axis": up.tolist(), "reason": up_reason},
+        **({"rotation": rotation.tolist(),
+            "rotation_note": f"x_output = rotation @ x_{frame} (--z-up: the {frame} frame turned so that up is +z)"}
+           if rotation is not None else {}),
         "thresholds": thresholds,
         **({"premises": pts.stats["premises"], "steps": {"points": pts.steps}} if pts is not None else {}),
         "formats": {"names": [w.name for w in writers], "options": dataclasses.asdict(options),

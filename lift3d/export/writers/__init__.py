@@ -60,6 +60,10 @@ class ExportOptions:
     height_band : tuple of float or None
         ``nav2``: obstacles are non-floor points whose height above the floor lies in ``[low, high]``
         (output units); None = 0.1 to 1.8 world units.
+    z_up : bool
+        Every file in the output frame turned so that ``up`` is +z (a right-angle rotation,
+        :func:`lift3d.export.ground.map_frame`, recorded as ``rotation`` in ``metadata.json``): ROS (REP 103),
+        PCL's and CloudCompare's viewers and most maps take z as up.
     """
 
     pcd_ascii: bool = False
@@ -68,6 +72,7 @@ class ExportOptions:
     up: str = "auto"
     floor_classes: tuple[str, ...] = ()
     height_band: tuple[float, float] | None = None
+    z_up: bool = False
 
 
 @dataclass
