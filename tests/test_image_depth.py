@@ -315,3 +315,17 @@ def test_plane_fit_takes_the_sweeps_depths_at_the_resolution_it_matched(tmp_path
     assert len(half) == (h // 2) * (w // 2)  # the centre pixel of each 2 x 2 block
     assert np.allclose(half[:, 2], 0.0, atol=1e-4) and len(half) < len(every)
     assert len(dense_points(scene, maps, labels, min_support=0, max_size=max(h, w))[0]) == len(every)
+
+
+def test_the_free_space_test_draws_at_most_max_sightlines_evenly():
+    from lift3d.train.target_steps.plane_rules import FitPlanes
+
+    cams = np.repeat(np.arange(10.0), 1000)[:, None] * np.ones(3)  # 10 cameras, 1000 sight lines each
+    seen = cams + 1.0
+    step = FitPlanes(max_sightlines=2000)
+    c, p = step.drawn(cams, seen)
+    assert len(c) == 2000 and np.allclose(p, c + 1.0)  # pairs stay pairs
+    assert np.all(np.abs(np.bincount(c[:, 0].astype(int), minlength=10) - 200) < 60)  # every camera in proportion
+    assert np.array_equal(step.drawn(cams, seen)[0], c)  # seeded
+    assert len(FitPlanes(max_sightlines=0).drawn(cams, seen)[0]) == len(cams)
+    assert len(FitPlanes(max_sightlines=20000).drawn(cams, seen)[0]) == len(cams)

@@ -28,7 +28,7 @@ class FitPlanes(TargetStep):
     plane-sweep depths (each with its pixel's class): walls get 1–2 sparse points per 1000 pixels but a few percent
     dense coverage. Points are thinned to one per ``voxel`` cell and class, so a textured corner that the plane
     sweep covers densely does not outvote a wall; every observation is a sight line for the fit's free-space
-    test (:func:`lift3d.sfm.planes.fit_planes`). Records ``stuff_points`` (thinned)."""
+    test (:func:`lift3d.sfm.planes.fit_planes`). Records ``stuff_points`` (thinned) and ``sightlines``."""
 
     name = "fit-planes"
     min_points: int = setting("plane_min_points")
@@ -58,8 +58,10 @@ class FitPlanes(TargetStep):
     """A plane holds every class with this share of its inliers."""
     class_cover: float = setting("plane_fit_class_cover")
     """A plane also holds every class of which it has this share of the points."""
+    max_sightlines: int = setting("plane_fit_max_sightlines")
+    """Most sight lines in the free-space test (an even random draw when there are more; 0 = all)."""
     seed: int = setting("plane_fit_seed")
-    """Seed of RANSAC's draws."""
+    """Seed of RANSAC's draws (and of the sight lines' draw)."""
 
     def apply(self, state: TargetState, context: TargetContext) -> dict[str, Any]:
         scene, sparse, labels = context.scene, context.sparse, context.labels
@@ -80,14 +82,22 @@ class FitPlanes(TargetStep):
         xyz.append(p), cls.append(c), cams.append(o), seen_xyz.append(p)
         xyz, cls = np.concatenate(xyz), np.concatenate(cls).astype(np.int64)
         state.points, state.classes = self.thin(xyz, cls, context.diag)
-        state.sightlines = (np.concatenate(cams), np.concatenate(seen_xyz))
+        state.sightlines = self.drawn(np.concatenate(cams), np.concatenate(seen_xyz))
         n_stuff = int(np.isin(state.classes, stuff).sum())
         # from the stereo points alone: the boundary points of later steps would raise it and lose the walls few
         # views see
         state.min_points = max(self.min_points, int(self.min_share * n_stuff))
         state.up, state.fit = context.up, self
         state.planes = self.fit_planes(state, context)
-        return {"stuff_points": n_stuff}
+        return {"stuff_points": n_stuff, "sightlines": int(len(state.sightlines[0]))}
+
+    def drawn(self, cams: np.ndarray, seen: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The sight lines ``(cameras [N, 3], seen points [N, 3])``, at most ``max_sightlines`` of them (an even
+        random draw, in their order)."""
+        if 0 < self.max_sightlines < len(cams):
+            keep = np.sort(np.random.default_rng(self.seed).choice(len(cams), self.max_sightlines, replace=False))
+            cams, seen = cams[keep], seen[keep]
+        return cams, seen
 
     def thin(self, xyz: np.ndarray, cls: np.ndarray, diag: float) -> tuple[np.ndarray, np.ndarray]:
         """One point per ``voxel`` cell and class, the first in order."""
