@@ -184,10 +184,14 @@ def test_a_capture_around_an_object_and_an_unbounded_street():
     assert outdoor.name == "outdoor" and "unbounded" in outdoor.why
 
 
-def test_training_records_the_profile_and_its_premises_reach_the_depth_targets(room, tmp_path):
+def test_training_records_the_profile_and_its_premises_reach_the_depth_targets(room, tmp_path, monkeypatch):
+    import lift3d.sfm
     from lift3d.model.config import load_yaml
     from lift3d.train.trainer import train
 
+    sweeps = []
+    sweep = lift3d.sfm.plane_sweep_scene
+    monkeypatch.setattr(lift3d.sfm, "plane_sweep_scene", lambda *a, **k: sweeps.append(1) or sweep(*a, **k))
     scene_dir = _without_scene_box(room, tmp_path / "images_only", depth=False)
     result = train(scene_dir, preset="fast", output_dir=tmp_path / "runs", progress=False, print_summary=False,
                    overrides={"optim": {"steps": 2}, "losses": {"feature": 0.0},
@@ -200,4 +204,5 @@ def test_training_records_the_profile_and_its_premises_reach_the_depth_targets(r
     assert saved["pose_check"]["likely_fix"] is None and saved["why_bounded"].startswith("points triangulated")
     # where the time before the first step went, stage by stage
     assert set(saved["setup_seconds"]) == {"pose_check", "triangulation", "plane_sweep", "depth_targets"}
+    assert len(sweeps) == 1  # the maps that sized the space are the depth targets' maps, not swept again
     assert all(v >= 0 for v in saved["setup_seconds"].values())

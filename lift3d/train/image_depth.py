@@ -190,9 +190,9 @@ def image_depth_targets(scene: Scene, frames: np.ndarray, cfg: ImageDepthConfig,
     info["median_error_px"] = round(points.median_error, 3) if len(points) else None
     if origin == "triangulated" or sparse is not None:  # the triangulation's own warnings
         info["warnings"] += list(points.info.get("warnings", []))
-    dense = labels = None
+    given_dense, dense, labels = dense, None, None
     if source in ("dense", "planes"):
-        dense, info["dense_from"] = scene_dense_maps(scene, frames, points, cache, progress, dense)
+        dense, info["dense_from"] = scene_dense_maps(scene, frames, points, cache, progress, given_dense)
     if source == "planes":
         labels = {int(i): scene.pseudo_labels(int(i)).semantic for i in frames}  # read once for every step
     # here, not at module level: keeps `import lift3d.train` cheap (the steps use lift3d.sfm, which loads OpenCV)
