@@ -153,13 +153,21 @@ class TrainingData:
         labelled pixels sorted by group; group ``g`` is ``seg_pixels[seg_start[g] : seg_start[g] + seg_count[g]]``
         of frame ``seg_frame[g]``; a frame's groups are contiguous from ``frame_first_segment``."""
         n_frames = len(self.frames)
-        frame_of_pixel = np.repeat(np.arange(n_frames, dtype=np.int64), np.diff(self.offsets))
+        # Every pixel of every training frame passes through here (56 M for 184 views of 640 x 480), so the
+        # arrays are made one at a time and the sorted keys are cut into groups where they change (what
+        # np.unique would do after sorting them again).
         labelled = np.flatnonzero(seg > 0)
-        key = (frame_of_pixel[labelled] << 20) | seg[labelled].astype(np.int64)
+        key = np.searchsorted(np.asarray(self.offsets), labelled, side="right") - 1  # the pixel's frame
+        key <<= 20
+        key |= seg[labelled]
         order = np.argsort(key, kind="stable")
+        key = key[order]
         pixels = labelled[order]
-        keys, start, count = np.unique(key[order], return_index=True, return_counts=True)
-        frame = keys >> 20
+        del labelled, order
+        start = np.flatnonzero(np.r_[True, key[1:] != key[:-1]]) if len(key) else np.zeros(0, np.int64)
+        count = np.diff(np.r_[start, len(key)])
+        frame = key[start] >> 20
+        del key
         # A 2D panoptic segment has one category: the channel of its first pixel is the segment's.
         thing = self.labels.thing_channels()[channel[pixels[start]]] if len(start) else np.zeros(0, bool)
         dev = self.device
