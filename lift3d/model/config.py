@@ -342,9 +342,9 @@ class ImageDepthConfig:
     plane_fit_max_size: int = 256
     """``planes``: the plane-sweep depths that the planes are fitted to (each one also a sight line of the fit's
     free-space test) are taken on a grid of at most this many pixels along a view's longer side. The sweep
-    matches images at ``sfm.dense.max_size`` (256) and upsamples its maps to the image: at 640 × 480 every fourth
-    pixel of each row and column is what it matched, the rest add time and memory only (184 such views: fitting
-    every pixel took > 10 min and 11 GB). 0 takes every pixel."""
+    matches images at ``sfm.dense.max_size`` (256) and upsamples its maps to the image: at 640 × 480 it matched
+    256 × 192, so every third pixel of each row and column keeps what it found and the rest add time and memory
+    only (184 such views: fitting every pixel took > 10 min and 11 GB). 0 takes every pixel."""
     plane_stride: int = 4
     """``planes``: a target at every ``plane_stride``-th pixel of each row and column (planes cover most of a
     view; denser targets would crowd out the sparse points on objects when target rays are drawn)."""
