@@ -652,6 +652,34 @@ def test_rendered_instance_ids_come_from_the_exported_objects():
     assert out.semantic[0] is sem and rendered.instance[0] is inst  # labels unchanged, the input untouched
 
 
+def test_export_instances_lift_pixels_by_the_median_depth():
+    from types import SimpleNamespace
+
+    from lift3d.data.cameras import Cameras, look_at
+    from lift3d.eval.evaluate import RenderedSplit, with_export_instances
+
+    # Two chairs at 2 m, left and right; a car-sized object of the same class 6 m behind the right one. Fog
+    # behind the chairs drags the expected depth to 6 m: lifted by it, the right half would take the far
+    # object's id. The median depth (2 m; 0 = never reached, then the expected depth counts) lands on the chairs.
+    cams = Cameras(c2w=look_at(np.zeros(3), np.array([0.0, 2.0, 0.0]))[None], fx=np.array([2.0]),
+                   fy=np.array([2.0]), cx=np.array([2.0]), cy=np.array([2.0]), width=np.array([4]),
+                   height=np.array([4]))
+    sem = np.full((4, 4), 7)
+    expected = np.full((4, 4), 6.0, np.float32)
+    median = np.full((4, 4), 2.0, np.float32)
+    median[3] = 0.0
+    cloud = SimpleNamespace(xyz=np.array([[-1.0, 2.0, 0.0], [1.0, 2.0, 0.0], [3.0, 6.0, 0.0]]),
+                            semantic=np.array([7, 7, 7]), instance=np.array([1, 2, 3]))
+    rendered = RenderedSplit([0], [np.zeros((4, 4, 3), np.float32)], [expected], [sem], [np.ones((4, 4), int)],
+                             [np.ones((4, 4))], median_depth=[median])
+    ids = with_export_instances(rendered, SimpleNamespace(cameras=cams), cloud, things=[7]).instance[0]
+    assert ids[0].tolist() == [1, 1, 2, 2] and ids[2].tolist() == [1, 1, 2, 2]
+    assert ids[3, 2:].tolist() == [3, 3]  # no median depth: the expected depth (6 m) reaches the far object
+    no_median = RenderedSplit([0], rendered.rgb, [expected], [sem], rendered.instance, rendered.confidence)
+    without = with_export_instances(no_median, SimpleNamespace(cameras=cams), cloud, things=[7]).instance[0]
+    assert (without[:, 2:] == 3).all()  # frames rendered without a median depth: the expected depth
+
+
 def test_eval_scores_both_instance_sources(trained, evaluated):
     m = evaluated["metrics"]
     assert m["instances_from"] == "export"

@@ -20,7 +20,8 @@ from lift3d.render.samplers import (
     spacing_fn_inv,
     uniform_edges,
 )
-from lift3d.render.volume import composite, opacity_crossing, render_depth, render_weights, render_weights_reference
+from lift3d.render.volume import (composite, interval_midpoints, median_depth, opacity_crossing, render_depth, render_weights,
+                                 render_weights_reference)
 
 
 def test_render_weights_match_reference_float64():
@@ -111,6 +112,40 @@ def test_opacity_crossing_edge_cases():
     assert float(dist[3]) == pytest.approx(3.0, abs=1e-5)  # ln 2 over the last interval: exactly at its end
     with pytest.raises(ValueError, match="level"):
         opacity_crossing(sigma, deltas, level=1.0)
+
+
+def test_median_depth_from_weights_matches_the_crossing_from_densities():
+    # The renderer holds weights, the isosurface densities: both must put the median at the same place.
+    g = torch.Generator().manual_seed(1)
+    sigma = torch.rand(64, 12, generator=g, dtype=torch.float64) * 8.0
+    sigma[:, :3] = 0.0
+    sigma[:8] = 0.0  # rays that never reach 0.5
+    sigma[8:16, 5] = 1e4  # a hard wall
+    deltas = torch.rand(64, 12, generator=g, dtype=torch.float64) * 0.2 + 0.01
+    edges = torch.cat([torch.full((64, 1), 0.3, dtype=torch.float64), 0.3 + deltas.cumsum(-1)], -1)
+    t_mid, _ = interval_midpoints(edges)
+    w, _ = render_weights(sigma, deltas)
+    dist, reached = median_depth(w, t_mid, deltas)
+    ref, ref_reached = opacity_crossing(sigma, deltas)
+    assert reached.tolist() == ref_reached.tolist() and not reached[:8].any() and reached[8:16].all()
+    assert torch.equal(dist[~reached], torch.zeros(int((~reached).sum()), dtype=torch.float64))
+    # opacity_crossing counts from 0. A saturated interval's optical depth is only known as far as 1 - Σ w
+    # resolves its transmittance out (~1e-16 here): the crossing is then within a few % of that interval.
+    k = (w.cumsum(-1) < 0.5).sum(-1).clamp(max=11)
+    slack = 0.03 * deltas.gather(-1, k[:, None]).squeeze(-1) + 1e-9
+    assert ((dist - ref - 0.3).abs()[reached] <= slack[reached]).all()
+    soft = reached & (sigma * deltas).lt(30).all(-1)  # no saturated interval: exact
+    assert soft.sum() > 20 and torch.allclose(dist[soft], ref[soft] + 0.3, atol=1e-9)
+    # A surface of opacity 0.6 over [1.0, 1.1] and faint fog over 500 m behind it (an unbounded scene's
+    # background): the fog drags the expected depth far away, the median stays in the surface.
+    d = torch.tensor([[1.0, 0.1] + [50.0] * 10], dtype=torch.float64)
+    s = torch.tensor([[0.0, math.log(1 / 0.4) / 0.1] + [0.01] * 10], dtype=torch.float64)
+    tm, _ = interval_midpoints(torch.cat([torch.zeros(1, 1, dtype=torch.float64), d.cumsum(-1)], -1))
+    wf, _ = render_weights(s, d)
+    dist_fog, _ = median_depth(wf, tm, d)
+    assert 1.0 < float(dist_fog) < 1.1 and float(render_depth(wf, tm, normalize=True)) > 30.0
+    with pytest.raises(ValueError, match="level"):
+        median_depth(w, t_mid, deltas, level=0.0)
 
 
 def test_composite_is_weighted_sum():

@@ -39,7 +39,7 @@ from lift3d.eval.points3d import geometry3d, points3d
 from lift3d.export.instances import INSTANCE_SOURCES, check_instance_source, frame_instance_ids
 from lift3d.export.pointcloud import SOURCES, extract_labelled_points
 from lift3d.model.run import LoadedRun, load_run
-from lift3d.render.images import MIN_SEGMENT_FRACTION, check_min_segment_fraction, render_frame
+from lift3d.render.images import MIN_SEGMENT_FRACTION, check_min_segment_fraction, render_frame, surface_depth
 from lift3d.utils.atomic import write_text_atomic
 from lift3d.utils.files import check_writable
 from lift3d.utils.progress import progress_bar
@@ -96,6 +96,8 @@ class RenderedSplit:
     semantic: list[np.ndarray]  # [H, W] category ids
     instance: list[np.ndarray]  # [H, W] instance ids, 0 on stuff
     confidence: list[np.ndarray]  # [H, W] probability of the chosen class
+    #: [H, W] z-depth where the opacity reaches 0.5 (0 where it never does), world units; None: not rendered
+    median_depth: list[np.ndarray] | None = None
 
     def labels(self) -> LabelStack:
         """The rendered labels as one flat :class:`LabelStack`."""
@@ -195,7 +197,7 @@ def render_split(loaded: LoadedRun, scene: Scene, frames: Sequence[int], *, chun
         (:func:`lift3d.render.images.merge_small_segments`; 0 scores the raw argmax labels).
     """
     rays = loaded.rays(scene)
-    out = RenderedSplit(list(map(int, frames)), [], [], [], [], [])
+    out = RenderedSplit(list(map(int, frames)), [], [], [], [], [], median_depth=[])
     for i in progress_bar(out.frames, desc="eval: render", disable=not progress, unit="frame"):
         r = render_frame(loaded.model, rays, i, loaded.norm.scale, chunk_size=chunk_size,
                          min_segment_fraction=min_segment_fraction)
@@ -205,6 +207,7 @@ def render_split(loaded: LoadedRun, scene: Scene, frames: Sequence[int], *, chun
         conf = r.confidence if r.confidence is not None else np.ones((h, w), np.float32)
         out.rgb.append(r.rgb)
         out.depth.append(r.depth)
+        out.median_depth.append(r.median_depth)
         out.semantic.append(sem)
         out.instance.append(inst)
         out.confidence.append(conf)
@@ -214,7 +217,8 @@ def render_split(loaded: LoadedRun, scene: Scene, frames: Sequence[int], *, chun
 def with_export_instances(rendered: RenderedSplit, scene: Scene, points, things: Iterable[int]) -> RenderedSplit:
     """``rendered`` with each thing pixel's instance id taken from an exported labelled cloud.
 
-    Every pixel of a thing class is lifted to the world along its ray by its rendered z-depth and takes the id
+    Every pixel of a thing class is lifted to the world along its ray by its rendered median z-depth (where the
+    opacity reaches 0.5, as the export's isosurface does; the expected depth where the render has none) and takes the id
     of the nearest exported point of its class (:func:`lift3d.export.instances.frame_instance_ids`), so
     that one object has one id in every view and the same id as in the export's ``instances.json``. The
     export groups the field's instance channels in 3D (connected components, fragments merged where the
@@ -238,7 +242,8 @@ def with_export_instances(rendered: RenderedSplit, scene: Scene, points, things:
     instance = []
     for k, i in enumerate(rendered.frames):
         field = np.where(rendered.instance[k] > 0, rendered.instance[k] + FIELD_CHANNEL_OFFSET, 0).astype(np.int64)
-        ids = frame_instance_ids(scene.cameras, i, rendered.semantic[k], rendered.depth[k], points.xyz,
+        depth = surface_depth(rendered.depth[k], rendered.median_depth[k] if rendered.median_depth else None)
+        ids = frame_instance_ids(scene.cameras, i, rendered.semantic[k], depth, points.xyz,
                                  points.semantic, points.instance, things)
         instance.append(np.where(ids > 0, ids, field))
     return replace(rendered, instance=instance)

@@ -148,7 +148,7 @@ def render_to_folder(
         fr = render_frame(loaded.model, rays, i, loaded.norm.scale, downscale=downscale, with_labels=needs_labels,
                           chunk_size=chunk_size, min_segment_fraction=min_segment_fraction)
         if cloud is not None and fr.semantic is not None:
-            fr.instance = frame_instance_ids(cameras, i, fr.semantic, fr.depth, cloud.xyz, cloud.semantic,
+            fr.instance = frame_instance_ids(cameras, i, fr.semantic, fr.surface_depth, cloud.xyz, cloud.semantic,
                                              cloud.instance, things, downscale=downscale)
         if size == (0, 0):
             size = fr.rgb.shape[:2]

@@ -25,6 +25,23 @@ def check_min_segment_fraction(value: float) -> float:
     return value
 
 
+def surface_depth(depth: np.ndarray, median_depth: np.ndarray | None) -> np.ndarray:
+    """The z-depth of the surface each pixel sees: the median depth (where the opacity reaches 0.5) where the
+    ray reaches it, else the expected depth; the expected depth everywhere when ``median_depth`` is None.
+
+    The export's isosurface lies at the median depth, so pixels lifted by it land on the exported points; the
+    expected depth ``Σ w_i t_i`` follows faint density behind the surface (an unbounded scene's background fog).
+
+    Examples
+    --------
+    >>> surface_depth(np.array([[4.0, 2.0]]), np.array([[3.0, 0.0]])).tolist()
+    [[3.0, 2.0]]
+    """
+    if median_depth is None:
+        return depth
+    return np.where(median_depth > 0, median_depth, depth)
+
+
 @dataclass
 class FrameRender:
     """One rendered frame. ``semantic`` holds category ids, ``instance`` ids ``1..V`` on things, 0 on stuff."""
@@ -35,6 +52,14 @@ class FrameRender:
     semantic: np.ndarray | None  # [H, W] int64 category ids
     instance: np.ndarray | None  # [H, W] int64
     confidence: np.ndarray | None  # [H, W] float32 probability of the chosen class
+    #: [H, W] float32 z-depth where the ray's opacity reaches 0.5 (the median depth: where the export's
+    #: isosurface lies), world units; 0 where it never does. None when not rendered.
+    median_depth: np.ndarray | None = None
+
+    @property
+    def surface_depth(self) -> np.ndarray:
+        """``[H, W]`` z-depth of the surface each pixel sees (:func:`surface_depth`)."""
+        return surface_depth(self.depth, self.median_depth)
 
 
 def merge_small_segments(semantic: np.ndarray, instance: np.ndarray,
@@ -114,6 +139,7 @@ def render_frame(model, rays: RayGenerator, i: int, world_scale: float, *, downs
     opacity = out["opacity"]
     # Distance to what the ray sees (normalised by opacity), projected on the optical axis, in world units.
     depth = out["depth"] / opacity.clamp_min(1e-6) * cos / world_scale
+    median = out["median_depth"] * cos / world_scale
     sem = inst = conf = None
     if with_labels and "semantic" in out:
         c, k, p = model.panoptic_from_probs(out["semantic"], out.get("instance"))
@@ -125,4 +151,5 @@ def render_frame(model, rays: RayGenerator, i: int, world_scale: float, *, downs
         depth=torch.where(opacity > 1e-4, depth, torch.zeros_like(depth)).view(h, w).cpu().numpy().astype(np.float32),
         opacity=opacity.view(h, w).cpu().numpy().astype(np.float32),
         semantic=sem, instance=inst, confidence=conf,
+        median_depth=median.view(h, w).cpu().numpy().astype(np.float32),
     )

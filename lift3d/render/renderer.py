@@ -25,7 +25,7 @@ from lift3d.field import native
 from lift3d.field.base import Field
 from lift3d.field.layers import ProposalGrid
 from lift3d.render.samplers import interlevel_loss, ray_aabb, sample_pdf, spacing_fn, spacing_fn_inv, uniform_edges
-from lift3d.render.volume import interval_midpoints, render_weights
+from lift3d.render.volume import interval_midpoints, median_depth, render_weights
 from lift3d.utils.progress import progress_bar
 
 
@@ -525,7 +525,9 @@ def render_rays_chunked(
     Returns
     -------
     dict
-        ``rgb`` ``[R, 3]``, ``depth`` ``[R]``, ``opacity`` ``[R]`` and with labels ``semantic`` ``[R, U]``
+        ``rgb`` ``[R, 3]``, ``depth`` ``[R]`` (expected distance ``Σ w_i t_i``), ``median_depth`` ``[R]``
+        (where the opacity reaches 0.5, :func:`lift3d.render.volume.median_depth`; 0 where it never does),
+        ``opacity`` ``[R]`` and with labels ``semantic`` ``[R, U]``
         and ``instance`` ``[R, V]`` *probabilities* (softmax of the composited logits).
     """
     chunk = chunk_size or cfg.chunk_size
@@ -534,7 +536,8 @@ def render_rays_chunked(
     for s in progress_bar(starts, desc="render", disable=not progress, leave=False, unit="chunk"):
         r = render_rays(field, proposals, origins[s:s + chunk], dirs[s:s + chunk], cfg, bounded=bounded,
                         training=False, with_labels=with_labels)
-        parts = {"rgb": r.rgb, "depth": r.depth, "opacity": r.opacity}
+        median, _ = median_depth(r.weights, r.t_mid, r.deltas)
+        parts = {"rgb": r.rgb, "depth": r.depth, "median_depth": median, "opacity": r.opacity}
         if r.semantic is not None:
             parts["semantic"] = torch.softmax(r.semantic, -1)
         if r.instance is not None:
