@@ -21,7 +21,7 @@ from typing import Any
 
 from lift3d.eval.evaluate import evaluate_run
 from lift3d.export import export_run
-from lift3d.synth import make_scene
+from lift3d.synth import SynthOptions, make_scene
 from lift3d.train.trainer import train
 from lift3d.utils.atomic import write_json_atomic
 from lift3d.viz.points import save_views
@@ -72,7 +72,7 @@ def run_demo(output_dir: str | Path = "demo_out", *, kind: str = "indoor", prese
     scene_dir = out / "scene"
     with stage("synthesise"):
         scene_args = QUICK["scene"] if quick else {}
-        make_scene(scene_dir, kind=kind, seed=seed, noise="moderate", progress=progress, **scene_args)
+        make_scene(scene_dir, SynthOptions(kind=kind, seed=seed, noise="moderate", **scene_args), progress=progress)
     files["scene"] = scene_dir
 
     with stage("train"):

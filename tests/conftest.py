@@ -68,11 +68,11 @@ def tiny_run(tmp_path_factory) -> Path:
 
     Shared by the export tests (test_export.py, test_export_formats.py): trained once per session.
     """
-    from lift3d.synth import make_scene
+    from lift3d.synth import SynthOptions, make_scene
     from lift3d.train.trainer import train
 
     root = tmp_path_factory.mktemp("tiny_run")
-    make_scene(root / "scene", kind="indoor", seed=0, noise="moderate", n_views=6, width=32, height=32,
+    make_scene(root / "scene", SynthOptions(kind="indoor", seed=0, noise="moderate", n_views=6, width=32, height=32),
                progress=False)
     result = train(root / "scene", preset="fast", output_dir=root / "runs", progress=False, print_summary=False,
                    overrides={"optim": {"steps": 15}, "losses": {"feature": 0.0},

@@ -811,14 +811,15 @@ def test_a_room_from_images_alone_keeps_its_field_and_export_inside_its_scene_bo
     """From images alone the run records the scene's box grown by its pad (config.yml), the loaded field has no
     density outside it, and the exported points lie in it (up to the isosurface's voxel, where the contour
     crosses the box's face). With a depth map in every training frame the rays run to the cube, as before."""
-    from lift3d.synth import make_scene
+    from lift3d.synth import SynthOptions, make_scene
     from lift3d.train.trainer import train
 
     with_depth = lift3d.load_run(tiny_run, "cpu")
     assert with_depth.cfg.scene["render_box"]["normalized"] is None
     assert "depth map" in with_depth.cfg.scene["render_box"]["why"] and not with_depth.model.field.space.box.numel()
-    make_scene(tmp_path / "scene", kind="indoor", seed=0, noise="moderate", n_views=8, width=32, height=32,
-               depth="none", progress=False)
+    make_scene(tmp_path / "scene",
+               SynthOptions(kind="indoor", seed=0, noise="moderate", n_views=8, width=32, height=32, depth="none"),
+               progress=False)
     result = train(tmp_path / "scene", preset="fast", output_dir=tmp_path / "runs", progress=False,
                    print_summary=False, overrides={
                        "optim": {"steps": 15}, "losses": {"feature": 0.0}, "data": {"patch_size": 0, "rays_per_image": 128},

@@ -124,10 +124,10 @@ def model_dir(tmp_path_factory) -> Path:
 
 @pytest.fixture(scope="module")
 def synth_template(tmp_path_factory) -> Path:
-    from lift3d.synth import make_scene
+    from lift3d.synth import SynthOptions, make_scene
 
     root = tmp_path_factory.mktemp("synth") / "scene"
-    make_scene(root, n_views=4, width=64, height=64, progress=False)
+    make_scene(root, SynthOptions(n_views=4, width=64, height=64), progress=False)
     return root
 
 

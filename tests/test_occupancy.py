@@ -14,7 +14,7 @@ from lift3d.field.occupancy import OccupancyGrid, uncontract_torch
 from lift3d.field.space import SceneSpace
 from lift3d.model.run import load_run
 from lift3d.render.renderer import SamplingConfig, render_rays
-from lift3d.synth import make_scene
+from lift3d.synth import SynthOptions, make_scene
 from lift3d.train.trainer import train
 
 SHORT = {
@@ -30,7 +30,8 @@ SHORT = {
 @pytest.fixture(scope="module")
 def run_path(tmp_path_factory):
     root = tmp_path_factory.mktemp("scenes") / "room"
-    make_scene(root, kind="indoor", seed=101, noise="moderate", n_views=8, width=32, height=32, progress=False)
+    make_scene(root, SynthOptions(kind="indoor", seed=101, noise="moderate", n_views=8, width=32, height=32),
+               progress=False)
     out = tmp_path_factory.mktemp("runs")
     return train(root, preset="fast", output_dir=out, overrides=SHORT, progress=False, print_summary=False).run.path
 

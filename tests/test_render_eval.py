@@ -59,12 +59,12 @@ ALL_OUTPUTS = ["rgb", "depth", "semantic", "instance", "panoptic"]
 @pytest.fixture(scope="session")
 def trained(tmp_path_factory) -> dict:
     """A synthetic scene and a 30-step run on it: ``{"scene": Path, "run": Path}``."""
-    from lift3d.synth import make_scene
+    from lift3d.synth import SynthOptions, make_scene
     from lift3d.train.trainer import train
 
     root = tmp_path_factory.mktemp("render_eval")
     scene = root / "scene"
-    make_scene(scene, kind="indoor", seed=103, n_views=10, width=48, height=48, progress=False)
+    make_scene(scene, SynthOptions(kind="indoor", seed=103, n_views=10, width=48, height=48), progress=False)
     overrides = {"optim": {"steps": 30}, "losses": {"feature": 0.0}, "field": {"grid": {"resolution_cap": 32}},
                  "data": {"rays_per_image": 64, "patch_size": 8}, "trainer": {"eval_images": 1}}
     result = train(scene, preset="fast", output_dir=root / "outputs", overrides=overrides, progress=False,

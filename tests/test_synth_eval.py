@@ -17,11 +17,11 @@ from lift3d.eval.report import format_eval_table
 @pytest.fixture(scope="module")
 def run(tmp_path_factory) -> dict:
     """A tiny synthetic scene with sensor depth and a 5-step run on it."""
-    from lift3d.synth import make_scene
+    from lift3d.synth import SynthOptions, make_scene
     from lift3d.train.trainer import train
 
     root = tmp_path_factory.mktemp("synth_eval")
-    make_scene(root / "scene", kind="indoor", seed=103, n_views=6, width=24, height=24, progress=False)
+    make_scene(root / "scene", SynthOptions(kind="indoor", seed=103, n_views=6, width=24, height=24), progress=False)
     overrides = {"optim": {"steps": 5}, "losses": {"feature": 0.0}, "field": {"grid": {"resolution_cap": 16}},
                  "data": {"rays_per_image": 32, "patch_size": 8}, "trainer": {"eval_images": 1}}
     result = train(root / "scene", preset="fast", output_dir=root / "outputs", overrides=overrides, progress=False,

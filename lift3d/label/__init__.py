@@ -592,8 +592,8 @@ def label_geometric(scene_dir: str | Path, settings: GeometricSettings | None = 
 
     Examples
     --------
-    >>> from lift3d.synth import make_scene                                  # doctest: +SKIP
-    >>> make_scene("room", n_views=8, progress=False)                        # doctest: +SKIP
+    >>> from lift3d.synth import SynthOptions, make_scene                    # doctest: +SKIP
+    >>> make_scene("room", SynthOptions(n_views=8), progress=False)          # doctest: +SKIP
     >>> label_geometric("room", progress=False)["labeller"]["up"]            # doctest: +SKIP
     [0.0, 0.0, 1.0]
     """
