@@ -19,7 +19,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from lift3d.eval.evaluate import evaluate_run
+from lift3d.eval.evaluate import EvalOptions, evaluate_run
 from lift3d.export import export_run
 from lift3d.synth import SynthOptions, make_scene
 from lift3d.train.trainer import train
@@ -83,9 +83,9 @@ def run_demo(output_dir: str | Path = "demo_out", *, kind: str = "indoor", prese
     files["run"] = result.run.path
 
     with stage("evaluate"):
-        metrics = evaluate_run(result.run.path, split="test", progress=progress,
-                               num_points=QUICK["num_points"] if quick else 200_000,
-                               timing_repeats=3 if quick else 10)
+        options = EvalOptions(split="test", num_points=QUICK["num_points"] if quick else 200_000,
+                              timing_repeats=3 if quick else 10)
+        metrics = evaluate_run(result.run.path, options, progress=progress)
     files["metrics"] = result.run.metrics_path
 
     with stage("export"):

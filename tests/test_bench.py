@@ -378,7 +378,7 @@ def test_a_failed_run_is_a_row_marked_failed_and_the_benchmark_goes_on(tmp_path,
         raise InputError(spec["run"], "simulated: no checkpoint")
 
     monkeypatch.setattr(worker, "train", train)
-    monkeypatch.setattr(worker, "evaluate_run", lambda run, **kw: _fake_metrics(0.8))
+    monkeypatch.setattr(worker, "evaluate_run", lambda run, options=None, **kw: _fake_metrics(0.8))
     monkeypatch.setattr(worker, "load_scene", lambda path: SimpleNamespace(categories=[]))
     monkeypatch.setattr(worker, "run_export", export)
     out, docs = tmp_path / "bench", tmp_path / "docs"

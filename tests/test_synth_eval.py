@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from lift3d.data.scene import load_scene
-from lift3d.eval.evaluate import RenderedSplit, evaluate_run, metrics_from_arrays, trained_frames_warning
+from lift3d.eval.evaluate import EvalOptions, RenderedSplit, evaluate_run, metrics_from_arrays, trained_frames_warning
 from lift3d.eval.report import format_eval_table
 
 
@@ -30,8 +30,8 @@ def run(tmp_path_factory) -> dict:
 
 
 def test_scoring_training_frames_warns_in_table_and_json(run, tmp_path):
-    kw = dict(with_points3d=False, progress=False, timing_repeats=0)
-    m = evaluate_run(run["run"], split="train", json_path=tmp_path / "train.json", **kw)
+    m = evaluate_run(run["run"], EvalOptions(split="train", with_points3d=False, timing_repeats=0),
+                     json_path=tmp_path / "train.json", progress=False)
     scene = load_scene(run["scene"])
     names = [scene.frames[i].name for i in scene.split("train")]
     assert m["frames_also_trained"] == names and len(m["warnings"]) == 1
