@@ -28,7 +28,7 @@ from pathlib import Path
 import numpy as np
 
 from lift3d.data.cameras import Cameras
-from lift3d.data.scene import Segment, SceneWriter
+from lift3d.data.scene import FrameGroundTruth, FramePseudoLabels, Segment, SceneWriter
 from lift3d.errors import InputError
 from lift3d.synth.cameras import MIN_CLEARANCE, PATHS, PATHS_OF_KIND
 from lift3d.synth.cameras import camera_path as plan_camera_path
@@ -520,9 +520,9 @@ def make_scene(out: str | Path, options: SynthOptions | None = None, *, progress
                 depth_in = view["depth"] if depth == "exact" else None
             name = names[i]
             writer.add_frame(
-                name, view["rgb"], written_c2w[i], (fx, fy, cx, cy), panoptic=pseudo.panoptic,
-                segments=pseudo.segments, gt_panoptic=seg, gt_segments=gt_segments, depth=depth_in,
-                gt_depth=view["depth"], gt_c2w=c2w[i],
+                name, view["rgb"], written_c2w[i], (fx, fy, cx, cy),
+                labels=FramePseudoLabels(pseudo.panoptic, pseudo.segments), depth=depth_in,
+                gt=FrameGroundTruth(seg, gt_segments, depth=view["depth"], c2w=c2w[i]),
             )
             hit = view["hit"]
             gt_inst = np.where(np.isin(view["category"], list(thing_ids)), seg, 0)
