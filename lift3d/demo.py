@@ -24,7 +24,7 @@ from lift3d.export import export_run
 from lift3d.synth import SynthOptions, make_scene
 from lift3d.train.trainer import train
 from lift3d.utils.atomic import write_json_atomic
-from lift3d.viz.points import save_views
+from lift3d.viz.points import PlotStyle, save_views
 from lift3d.viz.run import plot_run
 
 # Tiny settings (--quick, used by the test suite): every stage and code path, about a minute.
@@ -98,7 +98,8 @@ def run_demo(output_dir: str | Path = "demo_out", *, kind: str = "indoor", prese
 
     with stage("pictures"):
         pictures = out / "pictures"
-        shots = save_views(export_dir / "points.ply", pictures, views=("iso",), stem="points", boxes=True)
+        shots = save_views(export_dir / "points.ply", pictures, views=("iso",), style=PlotStyle(boxes=True),
+                           stem="points")
         files["points picture"] = shots[0]
         run_pics = plot_run(result.run.path, pictures, frames=3)
         for key, path in run_pics.items():
