@@ -19,12 +19,12 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from lift3d.eval.evaluate import evaluate_run
+from lift3d.eval.evaluate import EvalOptions, evaluate_run
 from lift3d.export import export_run
-from lift3d.synth import make_scene
+from lift3d.synth import SynthOptions, make_scene
 from lift3d.train.trainer import train
 from lift3d.utils.atomic import write_json_atomic
-from lift3d.viz.points import save_views
+from lift3d.viz.points import PlotStyle, save_views
 from lift3d.viz.run import plot_run
 
 # Tiny settings (--quick, used by the test suite): every stage and code path, about a minute.
@@ -72,7 +72,7 @@ def run_demo(output_dir: str | Path = "demo_out", *, kind: str = "indoor", prese
     scene_dir = out / "scene"
     with stage("synthesise"):
         scene_args = QUICK["scene"] if quick else {}
-        make_scene(scene_dir, kind=kind, seed=seed, noise="moderate", progress=progress, **scene_args)
+        make_scene(scene_dir, SynthOptions(kind=kind, seed=seed, noise="moderate", **scene_args), progress=progress)
     files["scene"] = scene_dir
 
     with stage("train"):
@@ -83,9 +83,9 @@ def run_demo(output_dir: str | Path = "demo_out", *, kind: str = "indoor", prese
     files["run"] = result.run.path
 
     with stage("evaluate"):
-        metrics = evaluate_run(result.run.path, split="test", progress=progress,
-                               num_points=QUICK["num_points"] if quick else 200_000,
-                               timing_repeats=3 if quick else 10)
+        options = EvalOptions(split="test", num_points=QUICK["num_points"] if quick else 200_000,
+                              timing_repeats=3 if quick else 10)
+        metrics = evaluate_run(result.run.path, options, progress=progress)
     files["metrics"] = result.run.metrics_path
 
     with stage("export"):
@@ -98,7 +98,8 @@ def run_demo(output_dir: str | Path = "demo_out", *, kind: str = "indoor", prese
 
     with stage("pictures"):
         pictures = out / "pictures"
-        shots = save_views(export_dir / "points.ply", pictures, views=("iso",), stem="points", boxes=True)
+        shots = save_views(export_dir / "points.ply", pictures, views=("iso",), style=PlotStyle(boxes=True),
+                           stem="points")
         files["points picture"] = shots[0]
         run_pics = plot_run(result.run.path, pictures, frames=3)
         for key, path in run_pics.items():

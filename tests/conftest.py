@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from lift3d.data.cameras import look_at
-from lift3d.data.scene import Category, SceneWriter, Segment
+from lift3d.data.scene import Category, FrameGroundTruth, FramePseudoLabels, SceneWriter, Segment
 
 #: Categories of :func:`tiny_scene`: two stuff classes and two thing classes.
 TINY_CATEGORIES = [
@@ -50,8 +50,8 @@ def tiny_scene(tmp_path: Path) -> Path:
             depth = 1.5 + rng.random((h, w)).astype(np.float32)
             names.append(writer.add_frame(
                 f"frame_{k:03d}", rng.integers(0, 256, (h, w, 3), dtype=np.uint8), look_at(eye, np.zeros(3)),
-                (14.0, 14.0, w / 2, h / 2), panoptic=pan, segments=segments,
-                gt_panoptic=gt, gt_segments=gt_segments, depth=depth,
+                (14.0, 14.0, w / 2, h / 2), labels=FramePseudoLabels(pan, segments),
+                gt=FrameGroundTruth(gt, gt_segments), depth=depth,
             ))
         writer.set_splits(train=names[:4], val=names[4:5], test=names[5:])
         writer.set_scene_box("bounded", np.array([[-1.0, -1.0, -0.5], [1.0, 1.0, 1.5]]))
@@ -68,11 +68,11 @@ def tiny_run(tmp_path_factory) -> Path:
 
     Shared by the export tests (test_export.py, test_export_formats.py): trained once per session.
     """
-    from lift3d.synth import make_scene
+    from lift3d.synth import SynthOptions, make_scene
     from lift3d.train.trainer import train
 
     root = tmp_path_factory.mktemp("tiny_run")
-    make_scene(root / "scene", kind="indoor", seed=0, noise="moderate", n_views=6, width=32, height=32,
+    make_scene(root / "scene", SynthOptions(kind="indoor", seed=0, noise="moderate", n_views=6, width=32, height=32),
                progress=False)
     result = train(root / "scene", preset="fast", output_dir=root / "runs", progress=False, print_summary=False,
                    overrides={"optim": {"steps": 15}, "losses": {"feature": 0.0},

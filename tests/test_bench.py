@@ -378,7 +378,7 @@ def test_a_failed_run_is_a_row_marked_failed_and_the_benchmark_goes_on(tmp_path,
         raise InputError(spec["run"], "simulated: no checkpoint")
 
     monkeypatch.setattr(worker, "train", train)
-    monkeypatch.setattr(worker, "evaluate_run", lambda run, **kw: _fake_metrics(0.8))
+    monkeypatch.setattr(worker, "evaluate_run", lambda run, options=None, **kw: _fake_metrics(0.8))
     monkeypatch.setattr(worker, "load_scene", lambda path: SimpleNamespace(categories=[]))
     monkeypatch.setattr(worker, "run_export", export)
     out, docs = tmp_path / "bench", tmp_path / "docs"
@@ -426,11 +426,12 @@ def test_quick_runs_give_a_street_with_depth_maps_a_surface_to_export(tmp_path):
     from lift3d.bench.worker import run_train
     from lift3d.export.pointcloud import extract_labelled_points
     from lift3d.model.run import load_run
-    from lift3d.synth import make_scene
+    from lift3d.synth import SynthOptions, make_scene
     from lift3d.train.trainer import train
 
     scene = tmp_path / "street"
-    make_scene(scene, kind="outdoor", seed=100, noise="moderate", depth="sensor", progress=False, **_QUICK_SCENE)
+    make_scene(scene, SynthOptions(kind="outdoor", seed=100, noise="moderate", depth="sensor", **_QUICK_SCENE),
+               progress=False)
     ten = train(scene, preset="fast", output_dir=tmp_path / "ten", progress=False, print_summary=False,
                 overrides=_merge(_QUICK_TRAIN, {"optim": {"steps": 10}, "trainer": {"seed": 100}}))
     loaded = load_run(ten.run.path, "cpu")
@@ -445,10 +446,11 @@ def test_quick_runs_give_a_street_with_depth_maps_a_surface_to_export(tmp_path):
 def test_under_load_measures_step_and_render_alone_and_beside_a_busy_neighbour(tmp_path):
     from lift3d.bench.runner import _QUICK_TRAIN, under_load_markdown
     from lift3d.bench.worker import run_under_load
-    from lift3d.synth import make_scene
+    from lift3d.synth import SynthOptions, make_scene
 
     scene = tmp_path / "room"
-    make_scene(scene, kind="indoor", seed=105, noise="moderate", n_views=6, width=32, height=32, progress=False)
+    make_scene(scene, SynthOptions(kind="indoor", seed=105, noise="moderate", n_views=6, width=32, height=32),
+               progress=False)
     res = run_under_load({"scene": str(scene), "preset": "fast", "overrides": _QUICK_TRAIN,
                           "output_dir": str(tmp_path / "runs"), "warmup": 1, "steps": 1, "repeats": 1, "rounds": 1,
                           "settle_seconds": 0.1})

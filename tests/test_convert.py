@@ -607,7 +607,7 @@ def test_scannet_without_predictions_is_a_scene_to_label(tmp_path):
 def test_depth_as_gt_is_for_evaluation_only(tmp_path, monkeypatch):
     """--depth-as-gt: training never reads the capture's depth; lift3d eval scores rendered depth against it."""
     import lift3d.data.scene as scene_module
-    from lift3d.eval.evaluate import evaluate_run
+    from lift3d.eval.evaluate import EvalOptions, evaluate_run
     from lift3d.train.trainer import train
 
     scannet_folder(tmp_path / "sn")
@@ -629,8 +629,8 @@ def test_depth_as_gt_is_for_evaluation_only(tmp_path, monkeypatch):
                               "data": {"rays_per_image": 32, "patch_size": 0},
                               "trainer": {"eval_every": 0, "eval_images": 0, "checkpoint_every": 0}})
     assert depth_reads == [] and result.summary["depth_supervision"] is False
-    m = evaluate_run(result.run.path, with_points3d=False, progress=False, timing_repeats=0, instances="field",
-                     write=False)
+    m = evaluate_run(result.run.path, EvalOptions(with_points3d=False, timing_repeats=0, instances="field"),
+                     progress=False, write=False)
     assert m["depth"]["reference"] == "gt_depth" and m["depth"]["n_valid"] == 2 * W * H
     assert {p.name for p in depth_reads} == {"0.png", "10.png"}  # the two test frames' gt/depth maps
     assert all(p.parent == tmp_path / "out" / "gt" / "depth" for p in depth_reads)

@@ -10,7 +10,7 @@ import pytest
 
 from lift3d.model.run import load_run
 from lift3d.model.run_folder import RunFolder
-from lift3d.synth import make_scene
+from lift3d.synth import SynthOptions, make_scene
 
 WORKER = Path(__file__).parent / "helpers" / "dist_worker.py"
 OVERRIDES = {
@@ -33,7 +33,7 @@ def _run(nproc: int, scene: Path, out: Path, report: Path) -> dict:
 @pytest.fixture(scope="module")
 def scene(tmp_path_factory):
     root = tmp_path_factory.mktemp("dist") / "room"
-    make_scene(root, kind="indoor", seed=5, n_views=8, width=32, height=32, progress=False)
+    make_scene(root, SynthOptions(kind="indoor", seed=5, n_views=8, width=32, height=32), progress=False)
     return root
 
 

@@ -22,7 +22,7 @@ import torch
 import lift3d
 from lift3d.data.cameras import look_at
 from lift3d.data.ply import read_labelled_ply
-from lift3d.data.scene import Category, SceneWriter, Segment, load_scene
+from lift3d.data.scene import Category, FramePseudoLabels, SceneWriter, Segment, load_scene
 from lift3d.errors import InputError
 from lift3d.export import export_run
 from lift3d.export.instances import assign_instances, voxel_downsample_majority
@@ -110,7 +110,8 @@ def _write_ring_scene(root: Path, n_frames: int = 8, category: int = 1) -> Path:
             target = np.array([0.0, 0.0, -0.2]) / WORLD_SCALE + WORLD_CENTER
             seg = np.ones((h, w), np.int64)
             names.append(writer.add_frame(f"f{k:02d}", np.zeros((h, w, 3), np.uint8), look_at(eye, target),
-                                          (30.0, 30.0, w / 2, h / 2), panoptic=seg, segments=[Segment(1, category)]))
+                                          (30.0, 30.0, w / 2, h / 2),
+                                          labels=FramePseudoLabels(seg, [Segment(1, category)])))
         writer.set_splits(train=names)
     return root
 
@@ -454,8 +455,8 @@ def test_unbounded_scene_is_contoured_in_contracted_space_and_cropped(tmp_path):
             target = eye * (3.0 if k % 2 else -1.0)
             target[2] = 0.0
             names.append(writer.add_frame(f"f{k:02d}", np.zeros((30, 40, 3), np.uint8), look_at(eye, target),
-                                          (25.0, 25.0, 20.0, 15.0), panoptic=np.ones((30, 40), np.int64),
-                                          segments=[Segment(1, 1)]))
+                                          (25.0, 25.0, 20.0, 15.0),
+                                          labels=FramePseudoLabels(np.ones((30, 40), np.int64), [Segment(1, 1)])))
         writer.set_splits(train=names)
     scene = load_scene(tmp_path / "scene")
     norm = SceneNormalization(np.zeros(3), 1.0, False, np.array([[-1.0] * 3, [1.0] * 3]))
@@ -811,14 +812,15 @@ def test_a_room_from_images_alone_keeps_its_field_and_export_inside_its_scene_bo
     """From images alone the run records the scene's box grown by its pad (config.yml), the loaded field has no
     density outside it, and the exported points lie in it (up to the isosurface's voxel, where the contour
     crosses the box's face). With a depth map in every training frame the rays run to the cube, as before."""
-    from lift3d.synth import make_scene
+    from lift3d.synth import SynthOptions, make_scene
     from lift3d.train.trainer import train
 
     with_depth = lift3d.load_run(tiny_run, "cpu")
     assert with_depth.cfg.scene["render_box"]["normalized"] is None
     assert "depth map" in with_depth.cfg.scene["render_box"]["why"] and not with_depth.model.field.space.box.numel()
-    make_scene(tmp_path / "scene", kind="indoor", seed=0, noise="moderate", n_views=8, width=32, height=32,
-               depth="none", progress=False)
+    make_scene(tmp_path / "scene",
+               SynthOptions(kind="indoor", seed=0, noise="moderate", n_views=8, width=32, height=32, depth="none"),
+               progress=False)
     result = train(tmp_path / "scene", preset="fast", output_dir=tmp_path / "runs", progress=False,
                    print_summary=False, overrides={
                        "optim": {"steps": 15}, "losses": {"feature": 0.0}, "data": {"patch_size": 0, "rays_per_image": 128},

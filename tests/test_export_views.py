@@ -9,7 +9,7 @@ import pytest
 
 from lift3d.data.scene import load_scene
 from lift3d.export.views import VoteRules, view_depths, view_label_counts, vote_labels, vote_point_labels
-from lift3d.synth import make_scene
+from lift3d.synth import SynthOptions, make_scene
 
 
 def test_vote_needs_enough_views_a_clear_majority_and_an_allowed_class():
@@ -31,7 +31,8 @@ def test_vote_needs_enough_views_a_clear_majority_and_an_allowed_class():
 @pytest.fixture(scope="module")
 def room(tmp_path_factory):
     root = tmp_path_factory.mktemp("views") / "room"
-    make_scene(root, kind="indoor", seed=104, noise="moderate", n_views=12, width=48, height=48, progress=False)
+    make_scene(root, SynthOptions(kind="indoor", seed=104, noise="moderate", n_views=12, width=48, height=48),
+               progress=False)
     return load_scene(root)
 
 

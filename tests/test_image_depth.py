@@ -16,7 +16,7 @@ from lift3d.model.config import ImageDepthConfig
 from lift3d.model.losses import depth_loss, ds_depth_loss
 from lift3d.model.normalization import infer_normalization
 from lift3d.render.rays import RayGenerator
-from lift3d.synth import make_scene
+from lift3d.synth import SynthOptions, make_scene
 from lift3d.train.data import TrainingData
 from lift3d.train.image_depth import image_depth_targets
 from lift3d.train.trainer import train
@@ -75,8 +75,9 @@ def test_depth_loss_takes_a_margin_per_ray():
 def room(tmp_path_factory):
     """A small synthetic room without depth maps, with hand-made sparse points lifted from its exact depth."""
     root = tmp_path_factory.mktemp("scenes") / "room"
-    make_scene(root, kind="indoor", seed=101, noise="moderate", n_views=8, width=40, height=40, progress=False,
-               depth="none")
+    make_scene(root,
+               SynthOptions(kind="indoor", seed=101, noise="moderate", n_views=8, width=40, height=40, depth="none"),
+               progress=False)
     scene = load_scene(root)
     train_frames = np.asarray(scene.split("train"))
     rng = np.random.default_rng(0)

@@ -22,7 +22,7 @@ from lift3d.cli.main import main as cli_main
 from lift3d.data.images import read_panoptic_png, read_unit_map, write_label_map
 from lift3d.data.scene import Category, load_scene
 from lift3d.errors import InputError
-from lift3d.label import STAGING_DIR, label_from_predictions, label_with_model
+from lift3d.label import STAGING_DIR, Mask2FormerSettings, label_from_predictions, label_with_model
 from lift3d.label.classes import (COCO_PANOPTIC_CATEGORIES, SCANNET21, builtin_classes_json, coco_sources,
                                   load_class_mapping, parse_classes, sources_from_labels)
 from lift3d.label.predictions import convert_prediction, read_prediction
@@ -124,10 +124,10 @@ def model_dir(tmp_path_factory) -> Path:
 
 @pytest.fixture(scope="module")
 def synth_template(tmp_path_factory) -> Path:
-    from lift3d.synth import make_scene
+    from lift3d.synth import SynthOptions, make_scene
 
     root = tmp_path_factory.mktemp("synth") / "scene"
-    make_scene(root, n_views=4, width=64, height=64, progress=False)
+    make_scene(root, SynthOptions(n_views=4, width=64, height=64), progress=False)
     return root
 
 
@@ -480,7 +480,7 @@ def test_label_scene_without_ground_truth_uses_coco(scene, model_dir):
         f.pop("gt_panoptic_file_path", None)
         f.pop("gt_depth_file_path", None)
     (scene / "transforms.json").write_text(json.dumps(meta))
-    report = label_with_model(scene, model_dir, threshold=0.5, progress=False)
+    report = label_with_model(scene, model_dir, Mask2FormerSettings(threshold=0.5), progress=False)
     s = load_scene(scene)
     s.validate()
     assert [c.name for c in s.categories] == MODEL_LABELS

@@ -34,10 +34,10 @@ SAME_STRUCTURE = {"wall": ("wall", "window"), "floor": ("floor", "rug"), "ceilin
 
 @pytest.fixture(scope="module")
 def room_template(tmp_path_factory) -> Path:
-    from lift3d.synth import make_scene
+    from lift3d.synth import SynthOptions, make_scene
 
     root = tmp_path_factory.mktemp("geometric") / "room"
-    make_scene(root, seed=4, n_views=12, width=96, height=96, camera_path="orbit", progress=False)
+    make_scene(root, SynthOptions(seed=4, n_views=12, width=96, height=96, camera_path="orbit"), progress=False)
     return root
 
 

@@ -13,8 +13,8 @@ import torch
 from lift3d.field.occupancy import OccupancyGrid, uncontract_torch
 from lift3d.field.space import SceneSpace
 from lift3d.model.run import load_run
-from lift3d.render.renderer import SamplingConfig, render_rays
-from lift3d.synth import make_scene
+from lift3d.render.renderer import RenderOptions, SamplingConfig, render_rays
+from lift3d.synth import SynthOptions, make_scene
 from lift3d.train.trainer import train
 
 SHORT = {
@@ -30,7 +30,8 @@ SHORT = {
 @pytest.fixture(scope="module")
 def run_path(tmp_path_factory):
     root = tmp_path_factory.mktemp("scenes") / "room"
-    make_scene(root, kind="indoor", seed=101, noise="moderate", n_views=8, width=32, height=32, progress=False)
+    make_scene(root, SynthOptions(kind="indoor", seed=101, noise="moderate", n_views=8, width=32, height=32),
+               progress=False)
     out = tmp_path_factory.mktemp("runs")
     return train(root, preset="fast", output_dir=out, overrides=SHORT, progress=False, print_summary=False).run.path
 
@@ -161,7 +162,7 @@ def test_render_label_coverage_decodes_fewer_samples_outside_training_only():
         for training in (False, True):
             decoded.clear()
             torch.manual_seed(0)  # the same jittered samples in both training renders
-            r = render_rays(field, none, o, d, cfg, bounded=True, training=training)
+            r = render_rays(field, none, o, d, cfg, RenderOptions(training=training), bounded=True)
             out[coverage, training] = (sum(decoded), r.semantic.detach())
     assert out[0.0, False][0] == out[0.0, True][0] == out[0.9, True][0] == 128 * 8  # the training cap
     assert out[0.9, False][0] < 0.8 * out[0.0, False][0]  # about 6 of 8 on this translucent slab
@@ -188,7 +189,7 @@ def test_render_color_coverage_decodes_fewer_samples_outside_training_only():
         for training in (False, True):
             decoded.clear()
             torch.manual_seed(0)  # the same jittered samples in both training renders
-            r = render_rays(field, none, o, d, cfg, bounded=True, training=training, with_labels=False)
+            r = render_rays(field, none, o, d, cfg, RenderOptions(training=training, with_labels=False), bounded=True)
             out[coverage, training] = (sum(decoded), r.rgb.detach(), r.opacity.detach())
     assert out[0.99, True][0] == out[0.0, True][0]
     assert out[0.99, False][0] < 0.9 * out[0.0, False][0]

@@ -12,7 +12,7 @@ from lift3d.data.cameras import Cameras
 from lift3d.sfm.planes import (FitSettings, NewWalls, add_walls, ceiling_height, ceiling_points, corner_cutters,
                                correct_walls, fit_planes, floor_boundary_points, floor_line, floor_line_walls,
                                point_classes)
-from lift3d.synth import make_scene
+from lift3d.synth import SynthOptions, make_scene
 from lift3d.train.image_depth import flat_info, image_depth_targets
 
 WALL, FLOOR = 1, 2
@@ -673,8 +673,9 @@ def floor_room(tmp_path_factory):
     """A small synthetic room without depth maps whose sparse points are lifted from its exact depth at pixels
     its ground truth calls floor or wall (each seen in two frames, labelled by the pseudo-labels there)."""
     root = tmp_path_factory.mktemp("scenes") / "room"
-    make_scene(root, kind="indoor", seed=102, noise="moderate", n_views=10, width=48, height=48, progress=False,
-               depth="none")
+    make_scene(root,
+               SynthOptions(kind="indoor", seed=102, noise="moderate", n_views=10, width=48, height=48, depth="none"),
+               progress=False)
     scene = load_scene(root)
     rng = np.random.default_rng(0)
     xyz, obs_f, obs_p, obs_uv, obs_z = [], [], [], [], []

@@ -143,7 +143,7 @@ def test_class_tables_are_read_and_checked(tmp_path):
 # ------------------------------------------------------------------------------------------ 3D pictures
 def test_rendered_pixels_carry_the_palette_colours_at_projected_centres():
     cloud = _two_instance_cloud()
-    pl = points.plot_instances(cloud, classes=CLASSES, view="top", window_size=(480, 200))
+    pl = points.plot_instances(cloud, points.PlotStyle(window_size=(480, 200)), classes=CLASSES, view="top")
     try:
         img = np.asarray(pl.screenshot(None, return_img=True))[..., :3]
         assert img.shape == (200, 480, 3)
@@ -168,7 +168,7 @@ def test_rendered_pixels_carry_the_palette_colours_at_projected_centres():
     # The same id keeps its colour in another picture with other ids around it.
     only_b = {k: v[cloud["instance"] != ID_A] for k, v in cloud.items()}
     only_b["instance"] = np.where(only_b["instance"] == ID_B, ID_B, 0)
-    pl = points.plot_instances(only_b, classes=CLASSES, view="top", window_size=(480, 200))
+    pl = points.plot_instances(only_b, points.PlotStyle(window_size=(480, 200)), classes=CLASSES, view="top")
     try:
         img = np.asarray(pl.screenshot(None, return_img=True))[..., :3]
         rc = _pixel(img, pl.renderers[0], CENTER_B)
@@ -179,7 +179,8 @@ def test_rendered_pixels_carry_the_palette_colours_at_projected_centres():
 
 def test_save_views_writes_pngs_of_the_requested_size(export_dir, tmp_path):
     out = tmp_path / "pics"
-    paths = points.save_views(export_dir / "points.ply", out, ["iso", "front"], window_size=(360, 180), boxes=True)
+    paths = points.save_views(export_dir / "points.ply", out, ["iso", "front"],
+                              points.PlotStyle(boxes=True, window_size=(360, 180)))
     assert [p.name for p in paths] == ["points_iso.png", "points_front.png"]
     for p in paths:
         img = iio.imread(p)
@@ -203,7 +204,8 @@ def test_mesh_renders_with_per_vertex_colours(tmp_path):
     write_labelled_ply(tmp_path / "mesh.ply", xyz, semantic=sem, instance=inst, faces=faces)
     geom = points.as_geometry(tmp_path / "mesh.ply")
     assert geom.is_mesh and len(geom.faces) == len(faces)
-    pl = points.plot_instances(tmp_path / "mesh.ply", classes=CLASSES, view="top", window_size=(400, 200))
+    pl = points.plot_instances(tmp_path / "mesh.ply", points.PlotStyle(window_size=(400, 200)), classes=CLASSES,
+                               view="top")
     try:
         img = np.asarray(pl.screenshot(None, return_img=True))[..., :3].astype(float)
         patch = _patch(img, _pixel(img, pl.renderers[0], (0.0, 0.0, 0.6)))
@@ -248,9 +250,9 @@ def test_cutaway_and_hide():
     assert points.cutaway_mask(xyz, inst, (1, 0, 0)).tolist() == [True, True, True, True, True, False]
     cloud = _two_instance_cloud()
     with pytest.raises(InputError, match="unknown class 'sofa'"):
-        points.plot_instances(cloud, classes=CLASSES, hide=["sofa"])
+        points.plot_instances(cloud, points.PlotStyle(hide=("sofa",)), classes=CLASSES)
     with pytest.raises(InputError, match="nothing to draw"):
-        points.plot_instances(cloud, classes=CLASSES, hide=["floor", "chair", "4"])
+        points.plot_instances(cloud, points.PlotStyle(hide=("floor", "chair", "4")), classes=CLASSES)
 
 
 def test_boxes_from_instances_json_and_computed(export_dir):
@@ -266,8 +268,8 @@ def test_boxes_from_instances_json_and_computed(export_dir):
     edge_middle = CENTER_A + np.array([-0.4, -0.4, 0.0])
     found = []
     for with_boxes in (False, True):
-        pl = points.plot_instances(export_dir / "points.ply", view="front", boxes=with_boxes, instances=[big],
-                                   window_size=(400, 200))
+        style = points.PlotStyle(boxes=with_boxes, window_size=(400, 200))
+        pl = points.plot_instances(export_dir / "points.ply", style, instances=[big], view="front")
         img = np.asarray(pl.screenshot(None, return_img=True))[..., :3]
         found.append(bool((_patch(img, _pixel(img, pl.renderers[0], edge_middle), 1) == instance_color(ID_A)[0])
                           .all(-1).any()))
@@ -279,7 +281,8 @@ def test_boxes_from_instances_json_and_computed(export_dir):
 
 
 def test_turntable_gif(export_dir, tmp_path):
-    path = points.save_turntable(export_dir / "points.ply", tmp_path / "spin.gif", frames=4, window_size=(200, 100))
+    path = points.save_turntable(export_dir / "points.ply", tmp_path / "spin.gif",
+                                 points.PlotStyle(window_size=(200, 100)), frames=4)
     frames = iio.imread(path, index=None)
     assert frames.shape[:3] == (4, 100, 200)
     assert not np.array_equal(frames[0], frames[1])  # the camera moved

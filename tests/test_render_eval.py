@@ -25,6 +25,7 @@ from lift3d.data.images import read_panoptic_png
 from lift3d.data.scene import Category, load_scene
 from lift3d.errors import InputError
 from lift3d.eval.evaluate import (
+    EvalOptions,
     LabelStack,
     RenderedSplit,
     compute_2d_metrics,
@@ -59,12 +60,12 @@ ALL_OUTPUTS = ["rgb", "depth", "semantic", "instance", "panoptic"]
 @pytest.fixture(scope="session")
 def trained(tmp_path_factory) -> dict:
     """A synthetic scene and a 30-step run on it: ``{"scene": Path, "run": Path}``."""
-    from lift3d.synth import make_scene
+    from lift3d.synth import SynthOptions, make_scene
     from lift3d.train.trainer import train
 
     root = tmp_path_factory.mktemp("render_eval")
     scene = root / "scene"
-    make_scene(scene, kind="indoor", seed=103, n_views=10, width=48, height=48, progress=False)
+    make_scene(scene, SynthOptions(kind="indoor", seed=103, n_views=10, width=48, height=48), progress=False)
     overrides = {"optim": {"steps": 30}, "losses": {"feature": 0.0}, "field": {"grid": {"resolution_cap": 32}},
                  "data": {"rays_per_image": 64, "patch_size": 8}, "trainer": {"eval_images": 1}}
     result = train(scene, preset="fast", output_dir=root / "outputs", overrides=overrides, progress=False,
@@ -444,8 +445,8 @@ def test_eval_without_gt_panoptic_computes_psnr_only(trained, tmp_path):
     for f in meta["frames"]:
         f.pop("gt_panoptic_file_path", None)
     (scene_copy / "transforms.json").write_text(json.dumps(meta))
-    m = evaluate_run(trained["run"], data=scene_copy, with_points3d=False, progress=False, write=False,
-                     timing_repeats=0)
+    m = evaluate_run(trained["run"], EvalOptions(with_points3d=False, timing_repeats=0), data=scene_copy,
+                     progress=False, write=False)
     assert isinstance(m["psnr"], float) and m["miou"] is None and m["pq_scene"] is None
     assert m["pseudo_labels"] is None and m["depth"] is not None
     assert any("no GT panoptic" in n for n in m["notes"])
@@ -686,8 +687,8 @@ def test_eval_scores_both_instance_sources(trained, evaluated):
     other = m["other_instances"]
     assert other["instances_from"] == "field" and set(other) >= {"pq_scene", "pq_scene_strict", "things", "stuff"}
     assert "instance ids from export; from field" in evaluated["stdout"]
-    field = evaluate_run(trained["run"], progress=False, write=False, timing_repeats=0, num_points=20000,
-                         instances="field")
+    field = evaluate_run(trained["run"], EvalOptions(timing_repeats=0, num_points=20000, instances="field"),
+                         progress=False, write=False)
     assert field["instances_from"] == "field" and field["other_instances"]["instances_from"] == "export"
     # The same renders and the same export, scored the other way round.
     assert field["pq_scene"] == pytest.approx(other["pq_scene"], abs=1e-12)
@@ -697,7 +698,7 @@ def test_eval_scores_both_instance_sources(trained, evaluated):
 
 def test_eval_rejects_an_unknown_instance_source(trained, capsys):
     with pytest.raises(InputError, match="--instances"):
-        evaluate_run(trained["run"], progress=False, write=False, instances="labels")
+        evaluate_run(trained["run"], EvalOptions(instances="labels"), progress=False, write=False)
 
 
 def test_eval_without_a_usable_export_scores_the_heads_ids(trained, monkeypatch):
@@ -707,12 +708,12 @@ def test_eval_without_a_usable_export_scores_the_heads_ids(trained, monkeypatch)
         raise InputError("run", "the field has no surface at density 1 (train longer)")
 
     monkeypatch.setattr(ev, "extract_labelled_points", no_surface)
-    m = evaluate_run(trained["run"], with_points3d=False, progress=False, write=False, timing_repeats=0)
+    m = evaluate_run(trained["run"], EvalOptions(with_points3d=False, timing_repeats=0), progress=False, write=False)
     assert m["instances_from"].startswith("field (no export:") and "no surface" in m["instances_from"]
     assert m["other_instances"] is None and m["pq_scene"] is not None
     # With the 3D block asked for, the export's error is the eval's error (as before).
     with pytest.raises(InputError, match="no surface"):
-        evaluate_run(trained["run"], progress=False, write=False, timing_repeats=0)
+        evaluate_run(trained["run"], EvalOptions(timing_repeats=0), progress=False, write=False)
 
 
 def test_eval_without_3d_gt_scores_the_export_against_the_depth_maps(trained, tmp_path):
@@ -721,8 +722,8 @@ def test_eval_without_3d_gt_scores_the_export_against_the_depth_maps(trained, tm
     scene_copy = tmp_path / "no3d"
     shutil.copytree(trained["scene"], scene_copy)
     (scene_copy / "gt" / "points.ply").unlink()
-    m = evaluate_run(trained["run"], data=scene_copy, progress=False, write=False, timing_repeats=0,
-                     num_points=20000)
+    m = evaluate_run(trained["run"], EvalOptions(timing_repeats=0, num_points=20000), data=scene_copy, progress=False,
+                     write=False)
     assert m["points3d"] is None
     g = m["geometry_from_depth"]
     assert g["reference"] == "gt_depth" and g["frames"] == m["frames"] and 0.0 <= g["fscore"] <= 1.0

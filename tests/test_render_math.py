@@ -278,7 +278,7 @@ def test_render_rays_extremes_no_nan():
     from lift3d.field.grid import GridField, GridFieldConfig
     from lift3d.field.layers import ProposalGrid
     from lift3d.field.registry import FieldConfig
-    from lift3d.render.renderer import SamplingConfig, render_rays
+    from lift3d.render.renderer import RenderOptions, SamplingConfig, render_rays
 
     torch.manual_seed(0)
     for contraction, bounded in (("none", True), ("linf", False)):
@@ -291,7 +291,7 @@ def test_render_rays_extremes_no_nan():
         scfg = SamplingConfig(far_plane=1e4, proposal_samples=(16,), num_samples=8)
         o = torch.tensor([[0.0, 0.0, 0.0], [5.0, 5.0, 5.0], [0.0, 0.0, 0.0]])
         d = torch.nn.functional.normalize(torch.tensor([[1.0, 0.0, 0.0], [1.0, 1.0, 1.0], [0.0, 0.0, -1.0]]), dim=-1)
-        out = render_rays(field, props, o, d, scfg, bounded=bounded, training=True)
+        out = render_rays(field, props, o, d, scfg, RenderOptions(training=True), bounded=bounded)
         for t in (out.rgb, out.depth, out.semantic, out.instance, out.distill):
             assert torch.isfinite(t).all()
         assert (out.opacity <= 1 + 1e-6).all()
@@ -322,7 +322,7 @@ def test_depth_guided_edges_land_around_the_measured_depth():
 
 def test_depth_guided_samples_put_weight_where_the_training_depth_says():
     """A field with a thin wall the proposal has not seen: without guidance no sample lands on it."""
-    from lift3d.render.renderer import SamplingConfig, render_rays
+    from lift3d.render.renderer import RenderOptions, SamplingConfig, render_rays
 
     class Wall(torch.nn.Module):
         def __init__(self):
@@ -340,9 +340,9 @@ def test_depth_guided_samples_put_weight_where_the_training_depth_says():
     o = torch.tensor([[-0.9, 0.0, 0.0]])
     d = torch.tensor([[1.0, 0.0, 0.0]])
     cfg = SamplingConfig(proposal_resolutions=(), num_samples=8, near_gradient_distance=0.0)
-    plain = render_rays(Wall(), torch.nn.ModuleList(), o, d, cfg, bounded=True, training=True, with_labels=False,
-                        generator=torch.Generator().manual_seed(0))
-    guided = render_rays(Wall(), torch.nn.ModuleList(), o, d, cfg, bounded=True, training=True, with_labels=False,
-                         generator=torch.Generator().manual_seed(0), depth_target=torch.tensor([1.5]))
+    plain = render_rays(Wall(), torch.nn.ModuleList(), o, d, cfg, RenderOptions(training=True, with_labels=False),
+                        bounded=True, generator=torch.Generator().manual_seed(0))
+    guided = render_rays(Wall(), torch.nn.ModuleList(), o, d, cfg, RenderOptions(training=True, with_labels=False),
+                         bounded=True, generator=torch.Generator().manual_seed(0), depth_target=torch.tensor([1.5]))
     assert float(plain.opacity[0]) < 0.5 < float(guided.opacity[0])
     assert abs(float(guided.depth[0]) - 1.5) < 0.01

@@ -14,7 +14,8 @@ import pytest
 
 from lift3d.data.cameras import look_at
 from lift3d.data.images import write_label_map, write_panoptic_png
-from lift3d.data.scene import Category, Frame, SceneWriter, Segment, _splits, load_scene
+from lift3d.data.scene import (Category, Frame, FrameGroundTruth, FramePseudoLabels, SceneWriter, Segment, _splits,
+                               load_scene)
 from lift3d.errors import InputError
 
 H, W = 12, 16
@@ -92,8 +93,8 @@ def test_panoptic_layout_round_trip(tmp_path: Path) -> None:
                 depth=rng.uniform(0.2, 20.0, (H, W)),
             )
             frame["file_path"] = writer.add_frame(
-                f"f{k}", frame["image"], frame["c2w"], frame["intrinsics"], panoptic=pan, segments=segments,
-                gt_panoptic=gt, gt_segments=gt_segments, depth=frame["depth"],
+                f"f{k}", frame["image"], frame["c2w"], frame["intrinsics"], labels=FramePseudoLabels(pan, segments),
+                gt=FrameGroundTruth(gt, gt_segments), depth=frame["depth"],
             )
             written.append(frame)
         paths = [f["file_path"] for f in written]
@@ -168,7 +169,8 @@ def test_two_png_layout_round_trip_with_confidence(tmp_path: Path) -> None:
                 confidence *= 0.003
             distortion = {"k1": -0.05 * (k + 1), "k2": 0.01, "p1": 0.001, "p2": -0.002, "k3": 0.0}
             writer.add_frame(f"g{k}", rng.integers(0, 256, (H, W, 3), dtype=np.uint8), _pose(k), _intrinsics(k),
-                             semantic=sem, instance=instance, confidence=confidence, distortion=distortion)
+                             labels=FramePseudoLabels(semantic=sem, instance=instance, confidence=confidence),
+                             distortion=distortion)
             written.append((sem, instance, confidence, distortion))
 
     scene = load_scene(root)
@@ -194,9 +196,9 @@ def test_panoptic_scores_multiply_with_confidence_map(tmp_path: Path) -> None:
     root = tmp_path / "scene"
     sem = _semantic_map(0)
     with SceneWriter(root, CATEGORIES) as writer:
-        writer.add_frame("a", np.zeros((H, W, 3), np.uint8), _pose(0), _intrinsics(0), panoptic=sem,
-                         segments=[Segment(1, 1, 0.5), Segment(2, 2, 1.0), Segment(5, 5, 0.8), Segment(9, 9, 0.1)],
-                         confidence=np.full((H, W), 0.5))
+        segments = [Segment(1, 1, 0.5), Segment(2, 2, 1.0), Segment(5, 5, 0.8), Segment(9, 9, 0.1)]
+        writer.add_frame("a", np.zeros((H, W, 3), np.uint8), _pose(0), _intrinsics(0),
+                         labels=FramePseudoLabels(sem, segments, confidence=np.full((H, W), 0.5)))
     labels = load_scene(root).pseudo_labels(0)
     score = np.select([sem == 1, sem == 2, sem == 5, sem == 9], [0.5, 1.0, 0.8, 0.1], 0.0)
     np.testing.assert_allclose(labels.confidence, score * 32768 / 65535, rtol=1e-6)
@@ -379,7 +381,8 @@ def test_unknown_category_in_two_png_semantic_map(tmp_path: Path) -> None:
     sem = _semantic_map(0)
     sem[0, 0] = 3  # not a category (ids are 1, 2, 5, 9)
     with SceneWriter(root, CATEGORIES) as writer:
-        writer.add_frame("a", np.zeros((H, W, 3), np.uint8), _pose(0), _intrinsics(0), semantic=sem)
+        writer.add_frame("a", np.zeros((H, W, 3), np.uint8), _pose(0), _intrinsics(0),
+                         labels=FramePseudoLabels(semantic=sem))
     _expect_error(lambda: load_scene(root).pseudo_labels(0), root / "semantics" / "a.png", "unknown category ids [3]")
 
 

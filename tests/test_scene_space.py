@@ -21,10 +21,10 @@ from lift3d.train.scene_space import SceneGeometry, box_warnings, check_poses, s
 @pytest.fixture(scope="module")
 def room(tmp_path_factory) -> Path:
     """A synthetic room (sensor depth, 3D GT) whose cameras stand well inside it."""
-    from lift3d.synth import make_scene
+    from lift3d.synth import SynthOptions, make_scene
 
     root = tmp_path_factory.mktemp("scene_space") / "room"
-    make_scene(root, kind="indoor", seed=5, n_views=20, width=96, height=96, progress=False)
+    make_scene(root, SynthOptions(kind="indoor", seed=5, n_views=20, width=96, height=96), progress=False)
     return root
 
 

@@ -10,7 +10,7 @@ import pytest
 
 from lift3d.cli.main import main as cli_main
 from lift3d.data.cameras import Cameras, look_at
-from lift3d.data.scene import Category, SceneWriter, Segment, load_scene
+from lift3d.data.scene import Category, FramePseudoLabels, SceneWriter, Segment, load_scene
 from lift3d.data.stereo import DenseDepth, SparsePoints, read_sparse_points, write_mvs_depth, write_sparse_points
 from lift3d.errors import InputError
 from lift3d.sfm import SfmConfig, TrackConfig, plane_sweep_scene, triangulate_scene
@@ -163,8 +163,9 @@ def textured_plane_scene(root, n=4, k1=0.0, c2w=None):
             img = np.repeat(np.clip(grey, 0, 255).astype(np.uint8)[..., None], 3, axis=2)
             z = (s * (d @ cams.forward[i])).reshape(SIZE, SIZE)
             depths.append(z)
-            w.add_frame(f"f{i}", img, c2w[i], (F, F, SIZE / 2, SIZE / 2), panoptic=np.ones((SIZE, SIZE), np.int64),
-                        segments=[Segment(1, 1)], depth=z, distortion={"k1": k1} if k1 else None)
+            w.add_frame(f"f{i}", img, c2w[i], (F, F, SIZE / 2, SIZE / 2),
+                        labels=FramePseudoLabels(np.ones((SIZE, SIZE), np.int64), [Segment(1, 1)]), depth=z,
+                        distortion={"k1": k1} if k1 else None)
         w.set_scene_box("bounded", np.array([[-2.0, -2.0, -0.3], [2.0, 2.0, 2.0]]))
         w.set_splits([f"images/f{i}.png" for i in range(n)])
     return depths

@@ -4,7 +4,7 @@ overhang gets none, and stereo depths that disagree with a face refute it."""
 import numpy as np
 
 from lift3d.data.cameras import Cameras, look_at
-from lift3d.sfm.standing import StandingFaces, standing_faces, stereo_agreement
+from lift3d.sfm.standing import StandingFaces, StandingSettings, standing_faces, stereo_agreement
 
 WALL, FLOOR, BOX, SLAB = 1, 2, 6, 7
 UP = np.array([0.0, 0.0, 1.0])
@@ -88,7 +88,8 @@ def test_an_edge_over_the_floor_makes_no_face():
     assert (faces.classes == BOX).sum() >= 2 and not (faces.classes == SLAB).any()
     # each view alone, uncarved, would put faces under it
     alone = standing_faces(cams, sorted(labels), labels, UP, 0.0, [FLOOR], [BOX, SLAB], [WALL, FLOOR],
-                           threshold=0.06, step=0.03, max_height=2.5, min_views=1, min_carve_views=10 ** 6)
+                           threshold=0.06, step=0.03, max_height=2.5,
+                           settings=StandingSettings(min_views=1, min_carve_views=10 ** 6))
     assert (alone.classes == SLAB).sum() >= 3
 
 

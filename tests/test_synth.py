@@ -16,7 +16,7 @@ from lift3d.cli.main import main as cli_main
 from lift3d.data.cameras import Cameras
 from lift3d.data.scene import load_scene
 from lift3d.errors import InputError
-from lift3d.synth import make_scene
+from lift3d.synth import SynthOptions, make_scene
 from lift3d.synth.cameras import MIN_CLEARANCE, PATHS_OF_KIND, camera_path
 from lift3d.synth.geometry import RayCaster
 from lift3d.synth.indoor import CATALOGUE, INDOOR_CONFUSABLE, build_indoor, inside_polygon
@@ -29,14 +29,16 @@ from lift3d.synth.sensors import DepthSensor
 @pytest.fixture(scope="module")
 def indoor(tmp_path_factory) -> tuple[Path, dict]:
     root = tmp_path_factory.mktemp("synth") / "indoor"
-    return root, make_scene(root, kind="indoor", seed=3, noise="moderate", n_views=12, width=48, height=48,
+    return root, make_scene(root,
+                            SynthOptions(kind="indoor", seed=3, noise="moderate", n_views=12, width=48, height=48),
                             progress=False)
 
 
 @pytest.fixture(scope="module")
 def outdoor(tmp_path_factory) -> tuple[Path, dict]:
     root = tmp_path_factory.mktemp("synth") / "outdoor"
-    return root, make_scene(root, kind="outdoor", seed=5, noise="moderate", n_views=10, width=64, height=48,
+    return root, make_scene(root,
+                            SynthOptions(kind="outdoor", seed=5, noise="moderate", n_views=10, width=64, height=48),
                             progress=False)
 
 
@@ -78,9 +80,9 @@ def test_scene_folder_loads_and_validates(which, indoor, outdoor):
 
 
 def test_every_option_is_recorded_in_transforms_json(tmp_path):
-    make_scene(tmp_path / "s", kind="indoor", seed=4, noise="hard", n_views=4, width=24, height=24, progress=False,
-               camera_path="handheld", depth="exact", pose_noise=(0.5, 2.0), view_confusion=0.2,
-               score_informativeness=0.6)
+    make_scene(tmp_path / "s", SynthOptions(kind="indoor", seed=4, noise="hard", n_views=4, width=24, height=24,
+                                            camera_path="handheld", depth="exact", pose_noise=(0.5, 2.0),
+                                            view_confusion=0.2, score_informativeness=0.6), progress=False)
     a = _meta(tmp_path / "s")["lift3d_synth"]
     assert (a["kind"], a["seed"], a["noise"], a["n_views"], a["width"], a["height"]) == ("indoor", 4, "hard", 4, 24, 24)
     assert (a["camera_path"], a["camera_path_option"], a["depth"]) == ("handheld", "handheld", "exact")
@@ -122,11 +124,10 @@ def test_written_scene_splits_are_disjoint(indoor):
 
 # --------------------------------------------------------------------------------------------- determinism
 def test_same_seed_same_bytes_other_seed_other_scene(tmp_path):
-    kwargs = dict(kind="indoor", n_views=4, width=32, height=24, progress=False, noise="view-correlated",
-                  pose_noise=(0.5, 1.0))
-    make_scene(tmp_path / "a", seed=7, **kwargs)
-    make_scene(tmp_path / "b", seed=7, **kwargs)
-    make_scene(tmp_path / "c", seed=8, **kwargs)
+    kwargs = dict(kind="indoor", n_views=4, width=32, height=24, noise="view-correlated", pose_noise=(0.5, 1.0))
+    make_scene(tmp_path / "a", SynthOptions(seed=7, **kwargs), progress=False)
+    make_scene(tmp_path / "b", SynthOptions(seed=7, **kwargs), progress=False)
+    make_scene(tmp_path / "c", SynthOptions(seed=8, **kwargs), progress=False)
     a, b, c = _files(tmp_path / "a"), _files(tmp_path / "b"), _files(tmp_path / "c")
     assert a.keys() == b.keys() and len(a) > 10
     assert [k for k in a if a[k] != b[k]] == []
@@ -135,11 +136,11 @@ def test_same_seed_same_bytes_other_seed_other_scene(tmp_path):
 
 
 def test_each_option_changes_only_what_it_is_about(tmp_path):
-    kwargs = dict(kind="indoor", seed=2, n_views=3, width=32, height=32, progress=False)
-    make_scene(tmp_path / "m", noise="moderate", **kwargs)
-    make_scene(tmp_path / "v", noise="view-correlated", **kwargs)
-    make_scene(tmp_path / "e", depth="exact", **kwargs)
-    make_scene(tmp_path / "p", pose_noise=(1.0, 3.0), **kwargs)
+    kwargs = dict(kind="indoor", seed=2, n_views=3, width=32, height=32)
+    make_scene(tmp_path / "m", SynthOptions(noise="moderate", **kwargs), progress=False)
+    make_scene(tmp_path / "v", SynthOptions(noise="view-correlated", **kwargs), progress=False)
+    make_scene(tmp_path / "e", SynthOptions(depth="exact", **kwargs), progress=False)
+    make_scene(tmp_path / "p", SynthOptions(pose_noise=(1.0, 3.0), **kwargs), progress=False)
     m, v, e, p = (_files(tmp_path / k) for k in "mvep")
     for key in m:
         if key.startswith(("images/", "gt/", "depth/")):
@@ -156,7 +157,7 @@ def test_each_option_changes_only_what_it_is_about(tmp_path):
 
 
 def test_depth_none_writes_no_input_depth(tmp_path):
-    make_scene(tmp_path / "n", depth="none", n_views=3, width=24, height=24, progress=False)
+    make_scene(tmp_path / "n", SynthOptions(depth="none", n_views=3, width=24, height=24), progress=False)
     scene = load_scene(tmp_path / "n")
     assert not scene.has_depth and all(f.depth_path is None for f in scene.frames)
     assert not (tmp_path / "n" / "depth").exists()
@@ -167,7 +168,7 @@ def test_refuses_a_foreign_folder_and_bad_arguments(tmp_path):
     (tmp_path / "mine").mkdir()
     (tmp_path / "mine" / "notes.txt").write_text("keep me")
     with pytest.raises(InputError, match="not empty"):
-        make_scene(tmp_path / "mine", n_views=2, width=16, height=16, progress=False)
+        make_scene(tmp_path / "mine", SynthOptions(n_views=2, width=16, height=16), progress=False)
     assert (tmp_path / "mine" / "notes.txt").read_text() == "keep me"
     bad_args = [
         (dict(kind="forest"), "--kind"), (dict(noise="extreme"), "--noise"), (dict(n_views=1), "--views"),
@@ -178,14 +179,14 @@ def test_refuses_a_foreign_folder_and_bad_arguments(tmp_path):
         (dict(view_confusion=-0.1), "--view-confusion"), (dict(score_informativeness=1.5), "--score-informativeness"),
     ]
     for bad, flag in bad_args:
-        args = dict(n_views=3, width=16, height=16, progress=False) | bad
+        args = dict(n_views=3, width=16, height=16) | bad
         with pytest.raises(InputError) as err:
-            make_scene(tmp_path / "new", **args)
+            make_scene(tmp_path / "new", SynthOptions(**args), progress=False)
         assert str(err.value).startswith(flag) and "\n" not in str(err.value)
         assert not (tmp_path / "new").exists() or not any((tmp_path / "new").iterdir()), "nothing half-written"
     # An earlier synthetic scene is replaced, with no stale frames left behind.
-    make_scene(tmp_path / "s", n_views=3, width=16, height=16, progress=False)
-    make_scene(tmp_path / "s", n_views=2, width=16, height=16, progress=False)
+    make_scene(tmp_path / "s", SynthOptions(n_views=3, width=16, height=16), progress=False)
+    make_scene(tmp_path / "s", SynthOptions(n_views=2, width=16, height=16), progress=False)
     assert sorted(p.name for p in (tmp_path / "s" / "images").iterdir()) == ["frame_0000.png", "frame_0001.png"]
 
 
@@ -385,10 +386,11 @@ def test_camera_paths_keep_clear_of_geometry(seed):
 def test_auto_camera_path_follows_the_seed(tmp_path):
     picked = set()
     for seed in range(6):
-        rep = make_scene(tmp_path / f"s{seed}", seed=seed, n_views=2, width=16, height=16, progress=False)
+        rep = make_scene(tmp_path / f"s{seed}", SynthOptions(seed=seed, n_views=2, width=16, height=16), progress=False)
         picked.add(rep["options"]["camera_path"])
-        make_scene(tmp_path / f"e{seed}", seed=seed, n_views=2, width=16, height=16, progress=False,
-                           camera_path=rep["options"]["camera_path"])
+        make_scene(tmp_path / f"e{seed}",
+                   SynthOptions(seed=seed, n_views=2, width=16, height=16, camera_path=rep["options"]["camera_path"]),
+                   progress=False)
         a, b = (_files(tmp_path / f"{k}{seed}")["images/frame_0001.png"] for k in "se")
         assert a == b
     assert len(picked) >= 2

@@ -10,18 +10,18 @@ import numpy as np
 import pytest
 
 from lift3d.data.scene import load_scene
-from lift3d.eval.evaluate import RenderedSplit, evaluate_run, metrics_from_arrays, trained_frames_warning
+from lift3d.eval.evaluate import EvalOptions, RenderedSplit, evaluate_run, metrics_from_arrays, trained_frames_warning
 from lift3d.eval.report import format_eval_table
 
 
 @pytest.fixture(scope="module")
 def run(tmp_path_factory) -> dict:
     """A tiny synthetic scene with sensor depth and a 5-step run on it."""
-    from lift3d.synth import make_scene
+    from lift3d.synth import SynthOptions, make_scene
     from lift3d.train.trainer import train
 
     root = tmp_path_factory.mktemp("synth_eval")
-    make_scene(root / "scene", kind="indoor", seed=103, n_views=6, width=24, height=24, progress=False)
+    make_scene(root / "scene", SynthOptions(kind="indoor", seed=103, n_views=6, width=24, height=24), progress=False)
     overrides = {"optim": {"steps": 5}, "losses": {"feature": 0.0}, "field": {"grid": {"resolution_cap": 16}},
                  "data": {"rays_per_image": 32, "patch_size": 8}, "trainer": {"eval_images": 1}}
     result = train(root / "scene", preset="fast", output_dir=root / "outputs", overrides=overrides, progress=False,
@@ -30,8 +30,8 @@ def run(tmp_path_factory) -> dict:
 
 
 def test_scoring_training_frames_warns_in_table_and_json(run, tmp_path):
-    kw = dict(with_points3d=False, progress=False, timing_repeats=0)
-    m = evaluate_run(run["run"], split="train", json_path=tmp_path / "train.json", **kw)
+    m = evaluate_run(run["run"], EvalOptions(split="train", with_points3d=False, timing_repeats=0),
+                     json_path=tmp_path / "train.json", progress=False)
     scene = load_scene(run["scene"])
     names = [scene.frames[i].name for i in scene.split("train")]
     assert m["frames_also_trained"] == names and len(m["warnings"]) == 1

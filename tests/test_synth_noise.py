@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 
 from lift3d.data.scene import Category, load_scene
-from lift3d.synth import make_scene
+from lift3d.synth import SynthOptions, make_scene
 from lift3d.synth.noise import (
     PRESETS,
     Confuser,
@@ -25,7 +25,8 @@ from lift3d.synth.sensors import DepthSensor, perturb_poses, pose_error
 def outdoor_gt(tmp_path_factory) -> list[tuple[np.ndarray, dict[int, int]]]:
     """GT panoptic maps of a small street (many things per frame) with their segment → category tables."""
     root = tmp_path_factory.mktemp("synth_noise") / "outdoor"
-    make_scene(root, kind="outdoor", seed=5, noise="clean", n_views=14, width=64, height=48, progress=False)
+    make_scene(root, SynthOptions(kind="outdoor", seed=5, noise="clean", n_views=14, width=64, height=48),
+               progress=False)
     scene = load_scene(root)
     frames = []
     for i in range(len(scene)):
@@ -73,7 +74,7 @@ def _thing_outcomes(outs, min_area: int = 6):
 
 # --------------------------------------------------------------------------------------------- independent errors
 def test_pseudo_ids_differ_across_views(tmp_path):
-    make_scene(tmp_path / "s", kind="indoor", seed=3, n_views=10, width=48, height=48, progress=False)
+    make_scene(tmp_path / "s", SynthOptions(kind="indoor", seed=3, n_views=10, width=48, height=48), progress=False)
     scene = load_scene(tmp_path / "s")
     ids_of: dict[int, list[int]] = {}
     for i in range(len(scene)):
@@ -91,7 +92,8 @@ def test_pseudo_ids_differ_across_views(tmp_path):
 
 
 def test_clean_noise_is_gt_up_to_renaming(tmp_path):
-    make_scene(tmp_path / "c", kind="outdoor", noise="clean", n_views=3, width=48, height=32, progress=False)
+    make_scene(tmp_path / "c", SynthOptions(kind="outdoor", noise="clean", n_views=3, width=48, height=32),
+               progress=False)
     scene = load_scene(tmp_path / "c")
     renamed = 0
     for i in range(len(scene)):
@@ -283,8 +285,9 @@ def test_view_correlated_scene_repeats_its_mistakes(tmp_path):
     """In a written scene, a thing's wrong class under view-correlated noise alone is one class, and the frames
     where it is wrong look at it from directions close to each other."""
     cfg = NoiseConfig("view-only", view_confusion=1.0, view_win=1.0, view_share=0.4)
-    make_scene(tmp_path / "v", kind="indoor", seed=1, noise=cfg, n_views=24, width=48, height=48, progress=False,
-               camera_path="orbit")
+    make_scene(tmp_path / "v",
+               SynthOptions(kind="indoor", seed=1, noise=cfg, n_views=24, width=48, height=48, camera_path="orbit"),
+               progress=False)
     scene = load_scene(tmp_path / "v")
     per_thing: dict[int, list[tuple[int, int, int]]] = {}
     for i in range(len(scene)):
@@ -304,9 +307,9 @@ def test_view_correlated_scene_repeats_its_mistakes(tmp_path):
 
 
 def test_view_correlated_preset_is_harder_than_moderate(tmp_path):
-    kw = dict(kind="indoor", seed=1, n_views=24, width=48, height=48, progress=False)
-    m = make_scene(tmp_path / "m", noise="moderate", **kw)["noise"]
-    v = make_scene(tmp_path / "v", noise="view-correlated", **kw)["noise"]
+    kw = dict(kind="indoor", seed=1, n_views=24, width=48, height=48)
+    m = make_scene(tmp_path / "m", SynthOptions(noise="moderate", **kw), progress=False)["noise"]
+    v = make_scene(tmp_path / "v", SynthOptions(noise="view-correlated", **kw), progress=False)["noise"]
     assert m["rates"]["view_confused_things"] == 0 and v["rates"]["view_confused_things"] > 0.05
     assert v["semantic_miou"] < m["semantic_miou"] - 0.03
     assert v["mean_score"]["correct"] - v["mean_score"]["corrupted"] < m["mean_score"]["correct"] - \
@@ -355,7 +358,8 @@ def test_depth_holes_concentrate_at_depth_edges():
 
 
 def test_sensor_depth_in_a_written_scene(tmp_path):
-    rep = make_scene(tmp_path / "s", kind="indoor", seed=2, n_views=4, width=64, height=64, progress=False)
+    rep = make_scene(tmp_path / "s", SynthOptions(kind="indoor", seed=2, n_views=4, width=64, height=64),
+                     progress=False)
     scene = load_scene(tmp_path / "s")
     assert 0.02 < rep["depth"]["holes"] < 0.2 and rep["depth"]["edge_holes"] > 0
     for i in range(len(scene)):
@@ -380,9 +384,9 @@ def test_pose_noise_statistics():
 
 
 def test_pose_noise_in_a_written_scene(tmp_path):
-    kw = dict(kind="indoor", seed=6, n_views=6, width=32, height=32, progress=False)
-    rep = make_scene(tmp_path / "p", pose_noise=(1.0, 4.0), **kw)
-    make_scene(tmp_path / "q", **kw)
+    kw = dict(kind="indoor", seed=6, n_views=6, width=32, height=32)
+    rep = make_scene(tmp_path / "p", SynthOptions(pose_noise=(1.0, 4.0), **kw), progress=False)
+    make_scene(tmp_path / "q", SynthOptions(**kw), progress=False)
     noisy, clean = load_scene(tmp_path / "p"), load_scene(tmp_path / "q")
     true = np.stack([f.gt_c2w for f in noisy.frames])
     assert np.allclose(true, clean.cameras.c2w), "the true poses are kept"

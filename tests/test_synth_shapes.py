@@ -14,7 +14,7 @@ from scipy.spatial import ConvexHull
 
 from lift3d.data.scene import load_scene
 from lift3d.errors import InputError
-from lift3d.synth import make_scene
+from lift3d.synth import SynthOptions, make_scene
 from lift3d.synth.cameras import MIN_CLEARANCE, camera_path
 from lift3d.synth.catalogue import INDOOR_CATEGORIES
 from lift3d.synth.geometry import RayCaster
@@ -95,7 +95,8 @@ def shape_scenes(tmp_path_factory) -> dict[tuple[str, int], Path]:
     out = {}
     for shape, seed in SHAPE_SEEDS:
         out[(shape, seed)] = root / f"{shape}{seed}"
-        make_scene(out[(shape, seed)], seed=seed, room_shape=shape, n_views=8, width=40, height=32, progress=False)
+        make_scene(out[(shape, seed)], SynthOptions(seed=seed, room_shape=shape, n_views=8, width=40, height=32),
+                   progress=False)
     return out
 
 
@@ -258,7 +259,8 @@ def test_dense_clutter_holds_thirty_things_side_by_side_thin_and_flat(shape, see
 
 
 def test_clutter_scene_records_and_shows_its_things(tmp_path):
-    rep = make_scene(tmp_path / "c", seed=0, clutter="dense", n_views=24, width=64, height=48, progress=False)
+    rep = make_scene(tmp_path / "c", SynthOptions(seed=0, clutter="dense", n_views=24, width=64, height=48),
+                     progress=False)
     meta = _meta(tmp_path / "c")
     assert (meta["clutter"], meta["clutter_level"]) == ("dense", "dense") and "room_shape" not in meta
     assert meta["scene"]["clutter"]["things"] >= 30
@@ -289,10 +291,10 @@ def test_clutter_scene_records_and_shows_its_things(tmp_path):
 
 # --------------------------------------------------------------------------------------------- determinism
 def test_new_options_same_args_same_bytes(tmp_path):
-    kw = dict(n_views=3, width=24, height=20, progress=False, room_shape="polygon", clutter="dense")
-    make_scene(tmp_path / "a", seed=5, **kw)
-    make_scene(tmp_path / "b", seed=5, **kw)
-    make_scene(tmp_path / "c", seed=6, **kw)
+    kw = dict(n_views=3, width=24, height=20, room_shape="polygon", clutter="dense")
+    make_scene(tmp_path / "a", SynthOptions(seed=5, **kw), progress=False)
+    make_scene(tmp_path / "b", SynthOptions(seed=5, **kw), progress=False)
+    make_scene(tmp_path / "c", SynthOptions(seed=6, **kw), progress=False)
     a, b, c = _files(tmp_path / "a"), _files(tmp_path / "b"), _files(tmp_path / "c")
     assert a.keys() == b.keys() and [k for k in a if a[k] != b[k]] == []
     assert a["images/frame_0000.png"] != c["images/frame_0000.png"]
@@ -314,10 +316,10 @@ def test_existing_seeds_are_unchanged(tmp_path):
     # `none`, changes no file but the recorded option.
     auto_none = next(s for s in range(20) if build_content("indoor", s, clutter="auto")[1] == "none")
     rect = next(s for s in range(20) if build_content("indoor", s)[0].description["room"]["shape"] == "rectangle")
-    kw = dict(n_views=3, width=24, height=20, progress=False)
+    kw = dict(n_views=3, width=24, height=20)
     for seed, option in ((rect, dict(room_shape="box")), (1, dict(room_shape="l")), (auto_none, dict(clutter="auto"))):
-        make_scene(tmp_path / f"d{seed}", seed=seed, **kw)
-        make_scene(tmp_path / f"o{seed}", seed=seed, **kw, **option)
+        make_scene(tmp_path / f"d{seed}", SynthOptions(seed=seed, **kw), progress=False)
+        make_scene(tmp_path / f"o{seed}", SynthOptions(seed=seed, **kw, **option), progress=False)
         d, o = _files(tmp_path / f"d{seed}"), _files(tmp_path / f"o{seed}")
         assert d.keys() == o.keys() and [k for k in d if d[k] != o[k]] == ["transforms.json"], option
         md, mo = _meta(tmp_path / f"d{seed}"), _meta(tmp_path / f"o{seed}")
@@ -331,7 +333,7 @@ def test_options_are_checked():
                       (dict(kind="outdoor", room_shape="polygon"), "--room-shape"),
                       (dict(kind="outdoor", clutter="dense"), "--clutter")):
         with pytest.raises(InputError) as err:
-            make_scene("/nonexistent/never", n_views=3, width=16, height=16, progress=False, **bad)
+            make_scene("/nonexistent/never", SynthOptions(n_views=3, width=16, height=16, **bad), progress=False)
         assert str(err.value).startswith(flag) and "\n" not in str(err.value)
 
 

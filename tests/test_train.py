@@ -9,7 +9,7 @@ import yaml
 
 from lift3d.model.run import load_run
 from lift3d.render.images import render_frame
-from lift3d.synth import make_scene
+from lift3d.synth import SynthOptions, make_scene
 from lift3d.train.trainer import train
 
 # Small and quick, but every code path of the real presets (proposals, patches, all losses).
@@ -26,7 +26,8 @@ TINY = {
 @pytest.fixture(scope="module")
 def tiny_indoor(tmp_path_factory):
     root = tmp_path_factory.mktemp("scenes") / "room"
-    make_scene(root, kind="indoor", seed=3, noise="moderate", n_views=10, width=40, height=40, progress=False)
+    make_scene(root, SynthOptions(kind="indoor", seed=3, noise="moderate", n_views=10, width=40, height=40),
+               progress=False)
     return root
 
 
@@ -171,7 +172,8 @@ def test_space_outside_the_declared_scene_box_has_no_density(trained, tiny_indoo
 @pytest.mark.slow
 def test_outdoor_scene_trains_unbounded_without_nan(tmp_path):
     root = tmp_path / "street"
-    make_scene(root, kind="outdoor", seed=1, noise="moderate", n_views=8, width=48, height=32, progress=False)
+    make_scene(root, SynthOptions(kind="outdoor", seed=1, noise="moderate", n_views=8, width=48, height=32),
+               progress=False)
     overrides = json.loads(json.dumps(TINY))
     overrides["optim"]["steps"] = 40
     overrides["trainer"].update(eval_every=0, checkpoint_every=0)

@@ -46,7 +46,7 @@ def main() -> int:
     args = ap.parse_args()
 
     from lift3d.data.scene import load_scene
-    from lift3d.synth import make_scene
+    from lift3d.synth import SynthOptions, make_scene
 
     size, margin, header = 128, 92, 30
     columns, titles = [], []
@@ -54,8 +54,8 @@ def main() -> int:
         for kind, seeds in (("indoor", args.seeds), ("outdoor", args.outdoor_seeds)):
             for seed in seeds:
                 root = Path(tmp) / f"{kind}{seed}"
-                rep = make_scene(root, kind=kind, seed=seed, noise="view-correlated", n_views=12, width=size,
-                                 height=size, progress=False)
+                rep = make_scene(root, SynthOptions(kind=kind, seed=seed, noise="view-correlated", n_views=12,
+                                                    width=size, height=size), progress=False)
                 scene = load_scene(root)
                 colors = {c.id: c.color for c in scene.categories}
                 # The view showing the most objects.

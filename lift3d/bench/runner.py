@@ -61,7 +61,7 @@ from lift3d.errors import InputError
 from lift3d.field import native
 from lift3d.model.config import load_config
 from lift3d.model.loss_terms import LossConfig
-from lift3d.synth import make_scene
+from lift3d.synth import SynthOptions, make_scene
 from lift3d.utils.atomic import write_json_atomic, write_text_atomic
 from lift3d.utils.device import available_cpus, default_threads
 from lift3d.utils.progress import progress_bar
@@ -345,8 +345,8 @@ def _scene(cfg: BenchConfig, kind: str, seed: int, noise: str, depth: str = "sen
     if not (root / "transforms.json").is_file():
         args = dict(_QUICK_SCENE) if cfg.quick else {}
         args.update(size)
-        make_scene(root, kind=kind, seed=seed, noise=noise, depth=depth, pose_noise=tuple(pose_noise),
-                   progress=False, **args)
+        make_scene(root, SynthOptions(kind=kind, seed=seed, noise=noise, depth=depth, pose_noise=tuple(pose_noise),
+                                      **args), progress=False)
     return root
 
 

@@ -38,7 +38,7 @@ from torch.profiler import ProfilerActivity, profile
 
 from lift3d.data.scene import load_scene
 from lift3d.errors import Lift3DError
-from lift3d.eval.evaluate import evaluate_run, json_safe
+from lift3d.eval.evaluate import EvalOptions, evaluate_run, json_safe
 from lift3d.export.pointcloud import benchmark_export
 from lift3d.model.run_folder import RunFolder
 from lift3d.train.trainer import Trainer, resolve_config, train
@@ -84,6 +84,13 @@ def stage(name: str):
         raise MeasurementFailed(name, one_line(exc), traceback.format_exc()) from exc
 
 
+def _eval_options(spec: dict) -> EvalOptions:
+    """The test-split evaluation a spec asks for (``num_points``, ``timing_repeats``, ``points3d``)."""
+    return EvalOptions(split="test", num_points=int(spec.get("num_points", 200_000)),
+                       timing_repeats=int(spec.get("timing_repeats", 10)),
+                       with_points3d=bool(spec.get("points3d", True)))
+
+
 def run_train(spec: dict) -> dict:
     overrides = json.loads(json.dumps(spec.get("overrides", {})))
     overrides.setdefault("trainer", {})["seed"] = int(spec.get("seed", 0))
@@ -94,10 +101,7 @@ def run_train(spec: dict) -> dict:
     train_wall = time.perf_counter() - start
     rss_train = peak_rss_mb()  # the peak only grows: read it before evaluation adds its own
     with stage("evaluation"):  # the 3D metrics' labelled export included
-        metrics = evaluate_run(result.run.path, split="test", progress=False,
-                               num_points=int(spec.get("num_points", 200_000)),
-                               timing_repeats=int(spec.get("timing_repeats", 10)),
-                               with_points3d=bool(spec.get("points3d", True)))
+        metrics = evaluate_run(result.run.path, _eval_options(spec), progress=False)
     return json_safe({
         "run": str(result.run.path),
         "steps": result.steps,
@@ -117,9 +121,7 @@ def run_train(spec: dict) -> dict:
 
 def run_evaluate(spec: dict) -> dict:
     """Evaluate an existing run folder again (``lift3d bench --reevaluate``)."""
-    metrics = evaluate_run(spec["run"], split="test", progress=False, num_points=int(spec.get("num_points", 200_000)),
-                           timing_repeats=int(spec.get("timing_repeats", 10)),
-                           with_points3d=bool(spec.get("points3d", True)))
+    metrics = evaluate_run(spec["run"], _eval_options(spec), progress=False)
     return json_safe({"run": spec["run"], "metrics": metrics})
 
 

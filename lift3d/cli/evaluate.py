@@ -70,7 +70,7 @@ def add_parser(subparsers, verb: str) -> argparse.ArgumentParser:
 def run(args: argparse.Namespace) -> int:
     """Evaluate, print the table, say where the metrics went."""
     # here, not at module level: keeps `lift3d --help` cheap
-    from lift3d.eval.evaluate import evaluate_run
+    from lift3d.eval.evaluate import EvalOptions, evaluate_run
     from lift3d.eval.report import format_eval_table
     from lift3d.render.images import MIN_SEGMENT_FRACTION
     from lift3d.utils.device import set_threads
@@ -82,12 +82,13 @@ def run(args: argparse.Namespace) -> int:
     if args.chunk_size is not None and args.chunk_size < 1:
         raise InputError("--chunk-size", f"must be a positive number of rays (got {args.chunk_size})")
     set_threads(args.threads)
-    m = evaluate_run(args.run, split=args.split, data=args.data, with_points3d=not args.no_points3d,
-                     progress=not args.quiet, device=args.device, json_path=args.json, num_points=args.num_points,
-                     timing_repeats=args.timing_repeats, chunk_size=args.chunk_size,
-                     true_poses=not args.no_true_poses,
-                     min_segment_fraction=MIN_SEGMENT_FRACTION if args.min_segment_fraction is None
-                     else args.min_segment_fraction, instances=args.instances)
+    options = EvalOptions(split=args.split, with_points3d=not args.no_points3d, num_points=args.num_points,
+                          timing_repeats=args.timing_repeats, chunk_size=args.chunk_size,
+                          true_poses=not args.no_true_poses,
+                          min_segment_fraction=MIN_SEGMENT_FRACTION if args.min_segment_fraction is None
+                          else args.min_segment_fraction, instances=args.instances)
+    m = evaluate_run(args.run, options, data=args.data, device=args.device, json_path=args.json,
+                     progress=not args.quiet)
     print(format_eval_table(m))
     where = f"{m['run']}/metrics.json" + (f" and {args.json}" if args.json else "")
     print(f"wrote {where}")

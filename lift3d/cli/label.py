@@ -130,6 +130,7 @@ def run(args: argparse.Namespace) -> int:
     """Label the scene and print a short summary."""
     # here, not at module level: keeps `lift3d --help` cheap
     from lift3d.label import format_report, label_from_predictions, label_geometric, label_with_model
+    from lift3d.label import Mask2FormerSettings
     from lift3d.label.geometric import GeometricSettings
 
     given = {flag: getattr(args, name) for flag, (name, *_) in GEOMETRIC_FLAGS.items()
@@ -159,12 +160,12 @@ def run(args: argparse.Namespace) -> int:
         return 0
     if args.prediction_categories is not None:
         raise InputError("--prediction-categories", "only applies to --from-predictions")
-    report = label_with_model(
-        args.data, args.model, classes=args.classes, tta=args.tta, tta_scales=args.tta_scales,
-        tta_flip=not args.no_tta_flip, batch_size=args.batch_size, device=args.device, threshold=args.threshold,
-        overlap_threshold=args.overlap_threshold, shortest_edge=args.shortest_edge,
-        confidence=not args.no_confidence, save_probabilities=args.save_probabilities, cache_dir=args.cache_dir,
-        progress=not args.quiet,
+    settings = Mask2FormerSettings(
+        threshold=args.threshold, overlap_threshold=args.overlap_threshold, shortest_edge=args.shortest_edge,
+        tta=args.tta, tta_scales=tuple(args.tta_scales), tta_flip=not args.no_tta_flip, batch_size=args.batch_size,
+        confidence=not args.no_confidence, save_probabilities=args.save_probabilities,
     )
+    report = label_with_model(args.data, args.model, settings, classes=args.classes, device=args.device,
+                              cache_dir=args.cache_dir, progress=not args.quiet)
     print(format_report(report, args.data))
     return 0

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+from dataclasses import replace
 from pathlib import Path
 
 from lift3d.errors import InputError
@@ -141,7 +142,7 @@ def run(args: argparse.Namespace) -> int:
 
 def _plot_file(args: argparse.Namespace) -> list[Path]:
     # here, not at module level: keeps `lift3d --help` cheap
-    from lift3d.viz.points import VIEWS, plot_instances, resolve_plot_up, save_turntable, save_views
+    from lift3d.viz.points import VIEWS, PlotStyle, plot_instances, resolve_plot_up, save_turntable, save_views
 
     path = Path(args.file)
     if not path.is_file():
@@ -153,28 +154,30 @@ def _plot_file(args: argparse.Namespace) -> list[Path]:
         if v not in VIEWS:
             raise InputError("--views", f"unknown view {v!r} (choose from {', '.join(VIEWS)}, or all)")
     up = resolve_plot_up(args.up, path)
-    common = dict(classes=args.classes, instances=args.instances, boxes=args.boxes, point_size=args.point_size,
-                  hide=_split_list(args.hide), cutaway=not args.no_cutaway, up=up)
+    hide = tuple(_split_list(args.hide))
     out_dir = Path(args.output_dir) if args.output_dir else path.parent / "plots"
     written: list[Path] = []
     if args.html:
         # here, not at module level: keeps `lift3d --help` cheap
         from lift3d.viz.html import write_html
 
-        return [write_html(path, args.html, classes=args.classes, up=up, hide=common["hide"],
-                           point_size=args.point_size, max_points=args.html_max_points)]
+        return [write_html(path, args.html, classes=args.classes, up=up, hide=hide, point_size=args.point_size,
+                           max_points=args.html_max_points)]
+    style = PlotStyle(boxes=args.boxes, window_size=tuple(args.window_size) if args.window_size else (1500, 650),
+                      point_size=args.point_size, hide=hide, cutaway=not args.no_cutaway, up=up)
     if args.show:
-        size = tuple(args.window_size) if args.window_size else (1500, 650)
-        pl = plot_instances(path, view=views[0], window_size=size, off_screen=False, **common)
+        pl = plot_instances(path, style, classes=args.classes, instances=args.instances, view=views[0],
+                            off_screen=False)
         pl.show(title=f"lift3d plot {path.name}")
         pl.close()
     else:
-        size = tuple(args.window_size) if args.window_size else (1500, 650)
-        written += save_views(path, out_dir, views, window_size=size, **common)
+        written += save_views(path, out_dir, views, style, classes=args.classes, instances=args.instances)
     if args.turntable:
-        size = tuple(args.window_size) if args.window_size else (960, 400)
-        written.append(save_turntable(path, out_dir / f"{path.stem}_turntable.{args.turntable_format}",
-                                      frames=args.turntable_frames, fps=args.fps, window_size=size, **common))
+        # without --window-size, the turntable's own (smaller) default size
+        spin = replace(style, window_size=tuple(args.window_size) if args.window_size else None)
+        written.append(save_turntable(path, out_dir / f"{path.stem}_turntable.{args.turntable_format}", spin,
+                                      classes=args.classes, instances=args.instances, frames=args.turntable_frames,
+                                      fps=args.fps))
     return written
 
 

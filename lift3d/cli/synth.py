@@ -78,13 +78,14 @@ def add_parser(subparsers, verb: str) -> argparse.ArgumentParser:
 def run(args: argparse.Namespace) -> int:
     """Build the scene and print a short summary with the noise statistics."""
     # here, not at module level: keeps `lift3d --help` cheap
-    from lift3d.synth import make_scene
+    from lift3d.synth import SynthOptions, make_scene
 
-    report = make_scene(args.out, kind=args.kind, seed=args.seed, noise=args.noise, n_views=args.views,
-                        width=args.width, height=args.height, progress=True, camera_path=args.camera_path,
-                        depth=args.depth, pose_noise=tuple(args.pose_noise), view_confusion=args.view_confusion,
-                        score_informativeness=args.score_informativeness, room_shape=args.room_shape,
-                        clutter=args.clutter)
+    options = SynthOptions(kind=args.kind, seed=args.seed, noise=args.noise, n_views=args.views, width=args.width,
+                           height=args.height, camera_path=args.camera_path, depth=args.depth,
+                           pose_noise=tuple(args.pose_noise), view_confusion=args.view_confusion,
+                           score_informativeness=args.score_informativeness, room_shape=args.room_shape,
+                           clutter=args.clutter)
+    report = make_scene(args.out, options, progress=True)
     print(format_summary(report))
     return 0
 

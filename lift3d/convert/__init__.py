@@ -33,7 +33,7 @@ import numpy as np
 from lift3d.convert import downscale
 from lift3d.data.cameras import is_rigid, opencv_to_opengl
 from lift3d.data.images import read_depth, read_label_map, read_rgb, write_label_map
-from lift3d.data.scene import Category, Scene, SceneWriter, Segment, load_scene
+from lift3d.data.scene import Category, FrameGroundTruth, FramePseudoLabels, Scene, SceneWriter, Segment, load_scene
 from lift3d.errors import InputError
 from lift3d.sfm.pose_check import FIX_MEANS, check_pose_convention, with_fix
 from lift3d.utils.progress import progress_bar
@@ -435,11 +435,11 @@ def write_scene(
             confidence = np.clip(np.nan_to_num(labels.confidence.astype(np.float32), nan=0.0), 0.0, 1.0)
         file_paths[fr.name] = writer.add_frame(
             fr.name, image, c2w, (fx, fy, cx, cy),
-            panoptic=None if labels is None else labels.panoptic, segments=() if labels is None else labels.segments,
-            confidence=confidence,
-            gt_panoptic=None if gt is None else gt.panoptic, gt_segments=() if gt is None else gt.segments,
-            depth=None if opts.depth_as_gt else depth, gt_depth=depth if opts.depth_as_gt else None,
-            distortion=fr.distortion or None,
+            labels=None if labels is None else FramePseudoLabels(labels.panoptic, labels.segments,
+                                                                 confidence=confidence),
+            depth=None if opts.depth_as_gt else depth, distortion=fr.distortion or None,
+            gt=FrameGroundTruth(None if gt is None else gt.panoptic, () if gt is None else gt.segments,
+                                depth=depth if opts.depth_as_gt else None),
         )
         if mask is not None:
             # SceneWriter.add_frame has no mask argument yet; nerfstudio's mask_path convention is

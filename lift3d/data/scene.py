@@ -822,6 +822,53 @@ def _splits(meta: dict, frames: list[Frame], where: Path) -> dict[str, np.ndarra
 
 
 # --------------------------------------------------------------------------------------------- writing
+@dataclass(frozen=True)
+class FramePseudoLabels:
+    """A frame's 2D pseudo-labels as :meth:`SceneWriter.add_frame` writes them: ``panoptic`` segment ids with their
+    ``segments`` (COCO panoptic), or else ``semantic`` + ``instance`` maps (the two-PNG layout).
+
+    Attributes
+    ----------
+    panoptic : np.ndarray, optional
+        ``int [H, W]`` per-frame segment ids, 0 = void (``panoptic/<name>.png``).
+    segments : iterable of Segment
+        One per non-zero id of ``panoptic`` (its category and score).
+    semantic, instance : np.ndarray, optional
+        ``int [H, W]`` category ids and instance ids, when there is no ``panoptic`` (``semantics/``,
+        ``instances/``).
+    confidence : np.ndarray, optional
+        ``[H, W]`` per-pixel confidence in [0, 1] (``confidence/<name>.png``, 16-bit).
+    """
+
+    panoptic: np.ndarray | None = None
+    segments: Iterable[Segment] = ()
+    semantic: np.ndarray | None = None
+    instance: np.ndarray | None = None
+    confidence: np.ndarray | None = None
+
+
+@dataclass(frozen=True)
+class FrameGroundTruth:
+    """What evaluation reads of a frame, as :meth:`SceneWriter.add_frame` writes it.
+
+    Attributes
+    ----------
+    panoptic : np.ndarray, optional
+        ``int [H, W]`` GT segment ids, scene-consistent (``gt/panoptic/<name>.png``).
+    segments : iterable of Segment
+        One per non-zero id of ``panoptic``.
+    depth : np.ndarray, optional
+        ``[H, W]`` exact z-depth in metres (``gt/depth/<name>.png``, ``gt_depth_file_path``).
+    c2w : np.ndarray, optional
+        ``[4, 4]`` the true camera-to-world (OpenGL axes) when the written pose is noisy (``gt_transform_matrix``).
+    """
+
+    panoptic: np.ndarray | None = None
+    segments: Iterable[Segment] = ()
+    depth: np.ndarray | None = None
+    c2w: np.ndarray | None = None
+
+
 class SceneWriter:
     """Write a scene folder frame by frame (used by ``lift3d synth``, ``convert`` and ``label``).
 
@@ -844,8 +891,8 @@ class SceneWriter:
     >>> with SceneWriter(root, cats) as w:
     ...     for k in range(2):
     ...         seg = np.ones((4, 6), np.int64); seg[:, 3:] = 5
-    ...         _ = w.add_frame(f"f{k}", np.zeros((4, 6, 3), np.uint8), np.eye(4), (5.0, 5.0, 3.0, 2.0),
-    ...                     panoptic=seg, segments=[Segment(1, 1, 0.9), Segment(5, 2, 0.8)])
+    ...         labels = FramePseudoLabels(seg, [Segment(1, 1, 0.9), Segment(5, 2, 0.8)])
+    ...         _ = w.add_frame(f"f{k}", np.zeros((4, 6, 3), np.uint8), np.eye(4), (5.0, 5.0, 3.0, 2.0), labels=labels)
     >>> load_scene(root).pseudo_labels(0).instance[0].tolist()
     [0, 0, 0, 5, 5, 5]
     """
@@ -887,23 +934,18 @@ class SceneWriter:
         c2w: np.ndarray,
         intrinsics: tuple[float, float, float, float],
         *,
-        panoptic: np.ndarray | None = None,
-        segments: Iterable[Segment] = (),
-        semantic: np.ndarray | None = None,
-        instance: np.ndarray | None = None,
-        confidence: np.ndarray | None = None,
-        gt_panoptic: np.ndarray | None = None,
-        gt_segments: Iterable[Segment] = (),
+        labels: FramePseudoLabels | None = None,
         depth: np.ndarray | None = None,
         distortion: dict[str, float] | None = None,
-        gt_depth: np.ndarray | None = None,
-        gt_c2w: np.ndarray | None = None,
+        gt: FrameGroundTruth | None = None,
     ) -> str:
         """Add one frame. ``c2w`` is camera-to-world in OpenGL axes; ``intrinsics`` is ``(fx, fy, cx, cy)``.
 
-        Pseudo-labels come either as ``panoptic`` segment ids + ``segments`` (COCO panoptic) or as
-        ``semantic`` + ``instance`` maps (two-PNG layout). ``gt_depth`` (metres) is the exact depth kept for
-        evaluation, ``gt_c2w`` the true pose when ``c2w`` is noisy. Returns the frame's ``file_path``."""
+        ``labels`` are the 2D pseudo-labels (none: a frame for ``lift3d label`` to label), ``depth`` the input
+        depth map (metres), ``distortion`` OpenCV coefficients by name, ``gt`` what evaluation reads (GT panoptic
+        labels, exact depth, the true pose when ``c2w`` is noisy). Returns the frame's ``file_path``."""
+        labels = FramePseudoLabels() if labels is None else labels
+        gt = FrameGroundTruth() if gt is None else gt
         h, w = image.shape[:2]
         file_path = f"images/{name}{self.image_ext}"
         write_rgb(self.root / file_path, image)
@@ -915,33 +957,34 @@ class SceneWriter:
         }
         if distortion:
             fr.update({k: float(v) for k, v in distortion.items()})
-        if panoptic is not None:
+        if labels.panoptic is not None:
             rel = f"panoptic/{name}.png"
-            write_panoptic_png(self.root / rel, panoptic)
+            write_panoptic_png(self.root / rel, labels.panoptic)
             fr["panoptic_file_path"] = rel
-            self.annotations.append(_annotation(name, len(self.frames), panoptic, segments))
-        elif semantic is not None:
+            self.annotations.append(_annotation(name, len(self.frames), labels.panoptic, labels.segments))
+        elif labels.semantic is not None:
             fr["semantic_file_path"] = f"semantics/{name}.png"
-            write_label_map(self.root / fr["semantic_file_path"], semantic)
-            if instance is not None:
+            write_label_map(self.root / fr["semantic_file_path"], labels.semantic)
+            if labels.instance is not None:
                 fr["instance_file_path"] = f"instances/{name}.png"
-                write_label_map(self.root / fr["instance_file_path"], instance)
-        if confidence is not None:
+                write_label_map(self.root / fr["instance_file_path"], labels.instance)
+        if labels.confidence is not None:
             fr["confidence_file_path"] = f"confidence/{name}.png"
-            write_label_map(self.root / fr["confidence_file_path"], np.round(np.clip(confidence, 0, 1) * 65535))
-        if gt_panoptic is not None:
+            write_label_map(self.root / fr["confidence_file_path"],
+                            np.round(np.clip(labels.confidence, 0, 1) * 65535))
+        if gt.panoptic is not None:
             rel = f"gt/panoptic/{name}.png"
-            write_panoptic_png(self.root / rel, gt_panoptic)
+            write_panoptic_png(self.root / rel, gt.panoptic)
             fr["gt_panoptic_file_path"] = rel
-            self.gt_annotations.append(_annotation(name, len(self.frames), gt_panoptic, gt_segments))
+            self.gt_annotations.append(_annotation(name, len(self.frames), gt.panoptic, gt.segments))
         if depth is not None:
             fr["depth_file_path"] = f"depth/{name}.png"
             write_depth(self.root / fr["depth_file_path"], depth, self.depth_unit_scale_factor)
-        if gt_depth is not None:
+        if gt.depth is not None:
             fr["gt_depth_file_path"] = f"gt/depth/{name}.png"
-            write_depth(self.root / fr["gt_depth_file_path"], gt_depth, self.depth_unit_scale_factor)
-        if gt_c2w is not None:
-            fr["gt_transform_matrix"] = np.asarray(gt_c2w, float).tolist()
+            write_depth(self.root / fr["gt_depth_file_path"], gt.depth, self.depth_unit_scale_factor)
+        if gt.c2w is not None:
+            fr["gt_transform_matrix"] = np.asarray(gt.c2w, float).tolist()
         self.frames.append(fr)
         return file_path
 

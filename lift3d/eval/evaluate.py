@@ -58,6 +58,7 @@ __all__ = [
     "points_from_rendered_depth",
     "time_render",
     "evaluate_run",
+    "EvalOptions",
     "json_safe",
     "write_metrics",
     "trained_frames_warning",
@@ -619,44 +620,17 @@ def write_metrics(metrics: dict, path: str | Path) -> Path:
 
 
 # --------------------------------------------------------------------------------------- the whole eval
-def evaluate_run(
-    run_path: str | Path,
-    split: str = "test",
-    data: str | Path | None = None,
-    with_points3d: bool = True,
-    progress: bool = True,
-    *,
-    device: str = "auto",
-    json_path: str | Path | None = None,
-    write: bool = True,
-    num_points: int = 200_000,
-    points_source: str = DEFAULT_SOURCE,
-    timing_repeats: int = 10,
-    chunk_size: int | None = None,
-    true_poses: bool = True,
-    min_segment_fraction: float = MIN_SEGMENT_FRACTION,
-    instances: str = INSTANCE_SOURCES[0],
-) -> dict:
-    """Evaluate a trained run: render the split, score it and its pseudo-label baseline, time rendering.
+@dataclass(frozen=True)
+class EvalOptions:
+    """What :func:`evaluate_run` scores and how (the ``lift3d eval`` flags of the same names).
 
-    Parameters
+    Attributes
     ----------
-    run_path : str or Path
-        Run folder written by ``lift3d train``.
     split : str
         ``test`` (default), ``val`` or ``train``.
-    data : str or Path, optional
-        Scene folder, when it is not where the run's config says.
     with_points3d : bool
-        Compute the 3D block when ``gt/points.ply`` exists.
-    progress : bool
-        Progress bars.
-    device : str
-        ``auto``, ``cpu`` or ``cuda[:N]``.
-    json_path : str or Path, optional
-        Also write the metrics here.
-    write : bool
-        Write ``metrics.json`` into the run folder.
+        Compute the 3D block when ``gt/points.ply`` exists (without it, the export's geometry against the
+        scored frames' depth maps).
     num_points : int
         Size of the labelled point cloud scored in 3D.
     points_source : str
@@ -678,6 +652,48 @@ def evaluate_run(
         :func:`with_export_instances`; the cloud is the one the 3D block scores, extracted once), or the argmax
         of the field's instance head (the paper's rule). Both are scored when there is GT: the other one's
         PQ^scene goes to ``metrics["other_instances"]``.
+    """
+
+    split: str = "test"
+    with_points3d: bool = True
+    num_points: int = 200_000
+    points_source: str = DEFAULT_SOURCE
+    timing_repeats: int = 10
+    chunk_size: int | None = None
+    true_poses: bool = True
+    min_segment_fraction: float = MIN_SEGMENT_FRACTION
+    instances: str = INSTANCE_SOURCES[0]
+
+
+def evaluate_run(
+    run_path: str | Path,
+    options: EvalOptions | None = None,
+    *,
+    data: str | Path | None = None,
+    device: str = "auto",
+    json_path: str | Path | None = None,
+    write: bool = True,
+    progress: bool = True,
+) -> dict:
+    """Evaluate a trained run: render the split, score it and its pseudo-label baseline, time rendering.
+
+    Parameters
+    ----------
+    run_path : str or Path
+        Run folder written by ``lift3d train``.
+    options : EvalOptions, optional
+        The split, the 3D block and its point cloud, the timing, the poses and instance ids scored (default:
+        :class:`EvalOptions`'s).
+    data : str or Path, optional
+        Scene folder, when it is not where the run's config says.
+    device : str
+        ``auto``, ``cpu`` or ``cuda[:N]``.
+    json_path : str or Path, optional
+        Also write the metrics here.
+    write : bool
+        Write ``metrics.json`` into the run folder.
+    progress : bool
+        Progress bars.
 
     Returns
     -------
@@ -689,6 +705,9 @@ def evaluate_run(
     InputError
         Missing / corrupt run folder or checkpoint, missing scene, unwritable output (named in the message).
     """
+    o = EvalOptions() if options is None else options
+    split, with_points3d, num_points, points_source = o.split, o.with_points3d, o.num_points, o.points_source
+    min_segment_fraction, instances = o.min_segment_fraction, o.instances
     if json_path is not None:
         check_writable(json_path)
     start = time.perf_counter()
@@ -701,16 +720,17 @@ def evaluate_run(
         raise InputError(scene.root / "transforms.json", f"split {split!r} has no frames")
 
     check_instance_source(instances)
-    scored_scene, poses = scoring_poses(scene, frames, true_poses)
+    scored_scene, poses = scoring_poses(scene, frames, o.true_poses)
     check_min_segment_fraction(min_segment_fraction)
-    rendered = render_split(loaded, scored_scene, frames, chunk_size=chunk_size, progress=progress,
+    rendered = render_split(loaded, scored_scene, frames, chunk_size=o.chunk_size, progress=progress,
                             min_segment_fraction=min_segment_fraction)
     render_timing = None
-    if timing_repeats > 0:
+    if o.timing_repeats > 0:
         # Timed before the export and the 3D metrics: their NumPy/SciPy thread pools keep the cores busy for a
         # while after they return (a 2048-ray render timed right after them took 39 instead of 33 ms; 34.5 ms
         # a second later).
-        render_timing = time_render(loaded, n_rays=2048, repeats=timing_repeats, scene=scored_scene, frame=frames[0])
+        render_timing = time_render(loaded, n_rays=2048, repeats=o.timing_repeats, scene=scored_scene,
+                                    frame=frames[0])
 
     things = [c for c in scene.thing_ids if c in set(loaded.labels.thing_ids)] if loaded.model.has_instances else []
     points = None

@@ -46,8 +46,8 @@ from lift3d.utils.atomic import write_bytes_atomic, write_json_atomic
 from lift3d.utils.files import read_json
 from lift3d.utils.progress import progress_bar
 
-__all__ = ["label_with_model", "label_from_predictions", "label_geometric", "LabelScene", "read_label_scene",
-           "FrameLabels"]
+__all__ = ["label_with_model", "label_from_predictions", "label_geometric", "Mask2FormerSettings", "LabelScene",
+           "read_label_scene", "FrameLabels"]
 
 #: Staging folder inside the scene (removed at the end, or at the start of the next run after a crash).
 STAGING_DIR = ".lift3d-label-staging"
@@ -73,6 +73,43 @@ class FrameLabels:
     segments: list[Segment]
     confidence: np.ndarray | None = None
     probabilities: dict[str, np.ndarray] | None = None
+
+
+@dataclass(frozen=True)
+class Mask2FormerSettings:
+    """How :func:`label_with_model` runs Mask2Former and what it writes (the ``Mask2Former options`` of
+    ``lift3d label``).
+
+    Attributes
+    ----------
+    threshold, overlap_threshold : float
+        Mask2Former's panoptic inference thresholds (:class:`~lift3d.label.mask2former.Mask2FormerLabeler`).
+    shortest_edge : int, optional
+        Inference resolution override.
+    tta : bool
+        Test-time augmentation over ``tta_scales`` × (no flip, flip if ``tta_flip``).
+    tta_scales : tuple of float
+        Inference resolutions of the TTA passes, relative to the model's.
+    tta_flip : bool
+        Also horizontally flipped TTA passes.
+    batch_size : int
+        Frames per forward pass.
+    confidence : bool
+        Write per-pixel confidence maps.
+    save_probabilities : bool
+        Also write ``probabilities/<name>.npz`` with ``probability`` (``[H, W, K + 1]``, void first),
+        ``confidence`` (TTA-averaged score × mask) and ``confidence_notta`` (Panoptic Lifting's layout).
+    """
+
+    threshold: float = 0.8
+    overlap_threshold: float = 0.8
+    shortest_edge: int | None = None
+    tta: bool = False
+    tta_scales: tuple[float, ...] = (0.75, 1.0, 1.25)
+    tta_flip: bool = True
+    batch_size: int = 1
+    confidence: bool = True
+    save_probabilities: bool = False
 
 
 @dataclass
@@ -327,11 +364,8 @@ def _frames_with_images(scene: LabelScene) -> Iterator[tuple[LabelFrame, np.ndar
 
 
 # --------------------------------------------------------------------------------------------- sources
-def label_with_model(scene_dir: str | Path, model: str | Path, *, classes: str | Path | None = None,
-                     tta: bool = False, tta_scales: Sequence[float] = (0.75, 1.0, 1.25), tta_flip: bool = True,
-                     batch_size: int = 1, device: str = "auto", threshold: float = 0.8,
-                     overlap_threshold: float = 0.8, shortest_edge: int | None = None, confidence: bool = True,
-                     save_probabilities: bool = False, cache_dir: str | Path | None = None,
+def label_with_model(scene_dir: str | Path, model: str | Path, settings: Mask2FormerSettings | None = None, *,
+                     classes: str | Path | None = None, device: str = "auto", cache_dir: str | Path | None = None,
                      progress: bool = True, labeler: Any = None) -> dict:
     """Label every frame of a scene with a Mask2Former panoptic model.
 
@@ -341,28 +375,19 @@ def label_with_model(scene_dir: str | Path, model: str | Path, *, classes: str |
         The scene folder (``transforms.json`` + images; existing labels are replaced).
     model : str or Path
         Local ``save_pretrained`` folder or Hugging Face hub id (:func:`~lift3d.label.mask2former.load_mask2former`).
+    settings : Mask2FormerSettings, optional
+        Inference thresholds and resolution, test-time augmentation, batch size, and which maps are written
+        (default: :class:`Mask2FormerSettings`'s).
     classes : str or Path, optional
         ``coco`` (default), ``scannet21`` or a ``classes.json`` (:mod:`lift3d.label.classes`).
-    tta : bool
-        Test-time augmentation over ``tta_scales`` × (no flip, flip if ``tta_flip``).
-    batch_size : int
-        Frames per forward pass.
     device : str
         ``auto``, ``cpu`` or ``cuda[:N]``.
-    threshold, overlap_threshold : float
-        Mask2Former's panoptic inference thresholds (:class:`~lift3d.label.mask2former.Mask2FormerLabeler`).
-    shortest_edge : int, optional
-        Inference resolution override.
-    confidence : bool
-        Write per-pixel confidence maps.
-    save_probabilities : bool
-        Also write ``probabilities/<name>.npz`` with ``probability`` (``[H, W, K + 1]``, void first),
-        ``confidence`` (TTA-averaged score × mask) and ``confidence_notta`` (Panoptic Lifting's layout).
     cache_dir : str or Path, optional
         Hugging Face cache to look in.
     progress : bool
     labeler : lift3d.label.mask2former.Mask2FormerLabeler, optional
-        A ready labeler (then ``model``, ``classes``, ``device``, thresholds and ``shortest_edge`` are unused).
+        A ready labeler (then ``model``, ``classes``, ``device`` and the settings' thresholds and
+        ``shortest_edge`` are unused).
 
     Returns
     -------
@@ -375,9 +400,10 @@ def label_with_model(scene_dir: str | Path, model: str | Path, *, classes: str |
     from lift3d.label.tta import augmentations
     from lift3d.utils.device import resolve_device, set_threads
 
+    s = Mask2FormerSettings() if settings is None else settings
     t0 = time.perf_counter()
-    if batch_size < 1:
-        raise InputError("--batch-size", f"must be at least 1 (got {batch_size})")
+    if s.batch_size < 1:
+        raise InputError("--batch-size", f"must be at least 1 (got {s.batch_size})")
     scene = read_label_scene(scene_dir)
     if labeler is None:
         dev = resolve_device(device)
@@ -387,11 +413,11 @@ def label_with_model(scene_dir: str | Path, model: str | Path, *, classes: str |
         mapping = load_class_mapping(classes, sources_from_labels(config.id2label))
         check_gt_compatible(scene, mapping.categories)  # before loading hundreds of MB of weights
         net, processor = load_mask2former(model, device=dev, cache_dir=cache_dir, config=config)
-        labeler = Mask2FormerLabeler(net, processor, mapping, threshold=threshold,
-                                     overlap_threshold=overlap_threshold, shortest_edge=shortest_edge)
+        labeler = Mask2FormerLabeler(net, processor, mapping, threshold=s.threshold,
+                                     overlap_threshold=s.overlap_threshold, shortest_edge=s.shortest_edge)
     check_gt_compatible(scene, labeler.mapping.categories)  # fail before minutes of inference
     try:
-        augs = augmentations(tuple(tta_scales), tta_flip) if tta else augmentations()
+        augs = augmentations(tuple(s.tta_scales), s.tta_flip) if s.tta else augmentations()
     except ValueError as exc:
         raise InputError("--tta-scales", str(exc)) from None
 
@@ -399,16 +425,17 @@ def label_with_model(scene_dir: str | Path, model: str | Path, *, classes: str |
         batch: list[tuple[LabelFrame, np.ndarray]] = []
         for item in _frames_with_images(scene):
             batch.append(item)
-            if len(batch) == batch_size or item[0] is scene.frames[-1]:
-                preds = labeler.predict([im for _, im in batch], augs, keep_probabilities=save_probabilities)
+            if len(batch) == s.batch_size or item[0] is scene.frames[-1]:
+                preds = labeler.predict([im for _, im in batch], augs, keep_probabilities=s.save_probabilities)
                 for (frame, image), p in zip(batch, preds):
                     probs = None
-                    if save_probabilities:
+                    if s.save_probabilities:
                         probs = {"probability": p.probabilities.astype(np.float16),
                                  "confidence": p.confidence_tta.astype(np.float16),
                                  "confidence_notta": p.confidence_notta.astype(np.float16),
                                  "class_names": np.array(["void"] + [c.name for c in labeler.mapping.categories])}
-                    yield frame, image, FrameLabels(p.panoptic, p.segments, p.confidence if confidence else None, probs)
+                    yield frame, image, FrameLabels(p.panoptic, p.segments, p.confidence if s.confidence else None,
+                                                    probs)
                 batch = []
 
     report = write_labels(scene, labeler.mapping.categories, labelled(), progress=progress)
@@ -565,8 +592,8 @@ def label_geometric(scene_dir: str | Path, settings: GeometricSettings | None = 
 
     Examples
     --------
-    >>> from lift3d.synth import make_scene                                  # doctest: +SKIP
-    >>> make_scene("room", n_views=8, progress=False)                        # doctest: +SKIP
+    >>> from lift3d.synth import SynthOptions, make_scene                    # doctest: +SKIP
+    >>> make_scene("room", SynthOptions(n_views=8), progress=False)          # doctest: +SKIP
     >>> label_geometric("room", progress=False)["labeller"]["up"]            # doctest: +SKIP
     [0.0, 0.0, 1.0]
     """

@@ -14,7 +14,7 @@ from lift3d.field.registry import build_field
 from lift3d.model.config import Config, load_config
 from lift3d.model.labels import LabelSpace
 from lift3d.model.loss_terms import LossInputs, RayBatch, compute_loss_terms, needs_labels
-from lift3d.render.renderer import RenderOutputs, render_rays, render_rays_chunked
+from lift3d.render.renderer import RenderOptions, RenderOutputs, render_rays, render_rays_chunked
 from lift3d.utils.progress import progress_bar
 
 
@@ -96,20 +96,20 @@ class PanopticModel(nn.Module):
                                           threshold=occ.threshold, decay=occ.decay, generator=generator,
                                           subdivide=subdivide)
 
-    def render(self, origins: Tensor, dirs: Tensor, *, training: bool = False, with_labels: bool = True,
-               generator: torch.Generator | None = None, proposal_anneal: float = 1.0,
-               depth_target: Tensor | None = None, depth_spread: Tensor | None = None) -> RenderOutputs:
-        """Render a batch of normalised-space rays (with gradients); see :func:`render_rays`."""
-        return render_rays(self.field, self.proposals, origins, dirs, self.cfg.sampling, bounded=self.bounded,
-                           training=training, with_labels=with_labels, generator=generator,
-                           proposal_anneal=proposal_anneal, depth_target=depth_target, depth_spread=depth_spread)
+    def render(self, origins: Tensor, dirs: Tensor, options: RenderOptions | None = None, *,
+               generator: torch.Generator | None = None, depth_target: Tensor | None = None,
+               depth_spread: Tensor | None = None) -> RenderOutputs:
+        """Render a batch of normalised-space rays (with gradients); see :func:`render_rays` (default options: a
+        render outside training, with labels)."""
+        return render_rays(self.field, self.proposals, origins, dirs, self.cfg.sampling, options, bounded=self.bounded,
+                           generator=generator, depth_target=depth_target, depth_spread=depth_spread)
 
-    def forward(self, origins: Tensor, dirs: Tensor, training: bool = True, with_labels: bool = True,
-                generator: torch.Generator | None = None, proposal_anneal: float = 1.0,
-                depth_target: Tensor | None = None, depth_spread: Tensor | None = None) -> RenderOutputs:
-        """Same as :meth:`render`; the entry point DistributedDataParallel wraps."""
-        return self.render(origins, dirs, training=training, with_labels=with_labels, generator=generator,
-                           proposal_anneal=proposal_anneal, depth_target=depth_target, depth_spread=depth_spread)
+    def forward(self, origins: Tensor, dirs: Tensor, options: RenderOptions | None = None, *,
+                generator: torch.Generator | None = None, depth_target: Tensor | None = None,
+                depth_spread: Tensor | None = None) -> RenderOutputs:
+        """:meth:`render`, the entry point DistributedDataParallel wraps; default options: a training render."""
+        return self.render(origins, dirs, RenderOptions(training=True) if options is None else options,
+                           generator=generator, depth_target=depth_target, depth_spread=depth_spread)
 
     def get_loss_dict(self, outputs: RenderOutputs, batch: RayBatch, *, progress: float,
                       generator: torch.Generator | None = None, perceptual: nn.Module | None = None) -> dict[str, Tensor]:

@@ -105,6 +105,29 @@ class SamplingConfig:
     """Rays per chunk when rendering without gradients."""
 
 
+@dataclass(frozen=True)
+class RenderOptions:
+    """How one :func:`render_rays` call renders its batch, beside the run's :class:`SamplingConfig`.
+
+    Attributes
+    ----------
+    training : bool
+        A training render: jittered samples, the random background if configured, the training-only sampling
+        settings (``train_label_coverage``, depth-guided samples, near-camera gradient scaling).
+    with_labels : bool
+        Also composite semantic and instance logits.
+    background : Tensor, optional
+        ``[R, 3]`` or ``[3]`` colour behind the ray (overrides ``cfg.background``).
+    proposal_anneal : float
+        Exponent in ``[0, 1]`` applied to proposal weights before resampling (1 = no annealing).
+    """
+
+    training: bool = False
+    with_labels: bool = True
+    background: Tensor | None = None
+    proposal_anneal: float = 1.0
+
+
 @dataclass
 class RenderOutputs:
     """What :func:`render_rays` returns (per ray unless noted)."""
@@ -163,13 +186,10 @@ def render_rays(
     origins: Tensor,
     dirs: Tensor,
     cfg: SamplingConfig,
+    options: RenderOptions | None = None,
     *,
     bounded: bool,
-    training: bool = False,
-    with_labels: bool = True,
-    background: Tensor | None = None,
     generator: torch.Generator | None = None,
-    proposal_anneal: float = 1.0,
     depth_target: Tensor | None = None,
     depth_spread: Tensor | None = None,
 ) -> RenderOutputs:
@@ -184,16 +204,13 @@ def render_rays(
     origins, dirs : Tensor
         ``[R, 3]`` ray origins and unit directions, normalised scene coordinates.
     cfg : SamplingConfig
+    options : RenderOptions, optional
+        Training or not, labels or not, the background, proposal annealing (default: :class:`RenderOptions`'s,
+        a render outside training with labels).
     bounded : bool
         Scene inside ``[-1, 1]^3`` (linear spacing) or unbounded (contracted, lin/disparity spacing).
-    training : bool
-        Jittered samples; random background if configured.
-    with_labels : bool
-        Also composite semantic and instance logits.
-    background : Tensor, optional
-        ``[R, 3]`` or ``[3]`` colour behind the ray (overrides ``cfg.background``).
-    proposal_anneal : float
-        Exponent in ``[0, 1]`` applied to proposal weights before resampling (1 = no annealing).
+    generator : torch.Generator, optional
+        Randomness of a training render's jitter and random background.
     depth_target : Tensor, optional
         ``[R]`` measured distance along each ray (normalised units, 0 = unknown): adds
         ``cfg.depth_guide_samples`` samples around it when training.
@@ -201,6 +218,9 @@ def render_rays(
         ``[R]`` half-width of those samples per ray (e.g. twice a measurement's standard deviation);
         ``cfg.depth_guide_spread`` where it is 0 or not given.
     """
+    options = RenderOptions() if options is None else options
+    training, with_labels, background, proposal_anneal = (options.training, options.with_labels, options.background,
+                                                          options.proposal_anneal)
     n_rays = origins.shape[0]
     spacing = "linear" if bounded else "lindisp"
     space = field.space
@@ -534,8 +554,8 @@ def render_rays_chunked(
     outs: dict[str, list[Tensor]] = {}
     starts = range(0, origins.shape[0], chunk)
     for s in progress_bar(starts, desc="render", disable=not progress, leave=False, unit="chunk"):
-        r = render_rays(field, proposals, origins[s:s + chunk], dirs[s:s + chunk], cfg, bounded=bounded,
-                        training=False, with_labels=with_labels)
+        r = render_rays(field, proposals, origins[s:s + chunk], dirs[s:s + chunk], cfg,
+                        RenderOptions(training=False, with_labels=with_labels), bounded=bounded)
         median, _ = median_depth(r.weights, r.t_mid, r.deltas)
         parts = {"rgb": r.rgb, "depth": r.depth, "median_depth": median, "opacity": r.opacity}
         if r.semantic is not None:

@@ -38,6 +38,7 @@ Images larger than ``max_size`` are matched downscaled; depth maps are brought b
 from __future__ import annotations
 
 import time
+from dataclasses import dataclass
 from typing import Sequence
 
 import cv2
@@ -128,11 +129,35 @@ def plane_range(k_ref: np.ndarray, k_src: Sequence[np.ndarray], rel: Sequence[tu
     return np.linspace(q_lo, q_hi, n)
 
 
-def _sweep_direction(ref, var_r, mu_r, sources, k_ref, k_src, rel, normal, qs, near, far, config, rules):
+@dataclass(frozen=True)
+class _Reference:
+    """The reference view as the photo-consistency needs it: its grey image and that image's mean and variance
+    over the ZNCC window around each pixel (computed once per view, for every plane direction).
+
+    Attributes
+    ----------
+    grey : np.ndarray
+        ``float32 [H, W]`` grey reference image.
+    mean, var : np.ndarray
+        ``[H, W]`` its windowed mean and variance (``config.window`` box filter).
+    """
+
+    grey: np.ndarray
+    mean: np.ndarray
+    var: np.ndarray
+
+    @classmethod
+    def of(cls, grey: np.ndarray, window: int) -> "_Reference":
+        mean = _box(grey, window)
+        return cls(grey, mean, np.maximum(_box(grey * grey, window) - mean * mean, 0.0))
+
+
+def _sweep_direction(reference: _Reference, sources, k_ref, k_src, rel, normal, qs, near, far, config, rules):
     """Cost volumes along one plane direction, one per aggregation rule (``rules``: False = the mean of the
     best ``best_k`` sources, True = of as many as hold the point when fewer do). Returns per rule and pixel
     the winner's cost, its depth, the uniqueness margin, whether it is an interior plane, each source's ZNCC
     at the winner and how many sources' images held the winner's point."""
+    ref, mu_r, var_r = reference.grey, reference.mean, reference.var
     h, w = ref.shape
     win = config.window
     n_src = len(sources)
@@ -272,17 +297,15 @@ def sweep_view(ref: np.ndarray, sources: Sequence[np.ndarray], k_ref: np.ndarray
         those whose image holds the point), 0 where rejected.
     """
     h, w = ref.shape
-    win = config.window
-    mu_r = _box(ref, win)
-    var_r = np.maximum(_box(ref * ref, win) - mu_r * mu_r, 0.0)
+    reference = _Reference.of(ref, config.window)
     best = None
     for normal in normals:
         normal = np.asarray(normal, np.float64)
         qs = plane_range(k_ref, k_src, rel, normal, near, far, (h, w), config)
         if len(qs) < 3:
             continue
-        res = [list(x) for x in _sweep_direction(ref, var_r, mu_r, sources, k_ref, k_src, rel, normal, qs, near,
-                                                  far, config, rules)]
+        res = [list(x) for x in _sweep_direction(reference, sources, k_ref, k_src, rel, normal, qs, near, far,
+                                                  config, rules)]
         if best is None:
             best = res
             continue
@@ -294,7 +317,7 @@ def sweep_view(ref: np.ndarray, sources: Sequence[np.ndarray], k_ref: np.ndarray
     if best is None:
         empty = (np.zeros((h, w), np.float32), np.zeros((h, w), np.float32), np.zeros((h, w), np.uint8))
         return [empty for _ in rules]
-    return [_accept(var_r, k_ref, k_src, rel, config, *b) for b in best]
+    return [_accept(reference.var, k_ref, k_src, rel, config, *b) for b in best]
 
 
 def _accept(var_r, k_ref, k_src, rel, config, c0, depth, margin, interior, best_src, covering):

@@ -149,10 +149,37 @@ class StandingFaces:
         return t_best, best
 
 
+@dataclass(frozen=True)
+class StandingSettings:
+    """How :func:`standing_faces` finds feet, carves the lines above them and fits faces to them.
+
+    Attributes
+    ----------
+    tolerance : float
+        Largest distance a foot may move when the boundary moves by one pixel (world units).
+    min_views : int
+        Fewest views whose feet make a face.
+    min_rows : int
+        Rows of thing above and of floor below a boundary.
+    carve_share, min_carve_views : float, int
+        A point of a line is carved when at least ``min_carve_views`` views, and at least ``carve_share`` of
+        the views that have it in their image, label it a stuff class.
+    iterations, seed : int
+        RANSAC draws per face, and their generator's seed.
+    """
+
+    tolerance: float = np.inf
+    min_views: int = 3
+    min_rows: int = 2
+    carve_share: float = 0.25
+    min_carve_views: int = 2
+    iterations: int = 300
+    seed: int = 0
+
+
 def standing_faces(cameras, frames, labels: dict[int, np.ndarray], normal: np.ndarray, offset: float,
                    floor_classes, thing_classes, stuff_classes, threshold: float, step: float, max_height: float,
-                   tolerance: float = np.inf, min_views: int = 3, min_rows: int = 2, carve_share: float = 0.25,
-                   min_carve_views: int = 2, iterations: int = 300, seed: int = 0) -> StandingFaces:
+                   settings: StandingSettings | None = None) -> StandingFaces:
     """The upright faces of things standing on the floor that the views' labels agree on (module docstring).
 
     Parameters
@@ -174,33 +201,26 @@ def standing_faces(cameras, frames, labels: dict[int, np.ndarray], normal: np.nd
         Spacing of the points up each vertical line (world units): how finely the top is found.
     max_height : float
         Highest point of a line above the floor.
-    tolerance : float
-        Largest distance a foot may move when the boundary moves by one pixel (world units).
-    min_views : int
-        Fewest views whose feet make a face.
-    min_rows : int
-        Rows of thing above and of floor below a boundary.
-    carve_share, min_carve_views : float, int
-        A point of a line is carved when at least ``min_carve_views`` views, and at least ``carve_share`` of
-        the views that have it in their image, label it a stuff class.
-    iterations, seed : int
-        RANSAC draws per face, and their generator's seed.
+    settings : StandingSettings, optional
+        The feet's tolerance, the views a face and a carve need, RANSAC's draws (default:
+        :class:`StandingSettings`'s).
 
     Returns
     -------
     StandingFaces
     """
+    s = StandingSettings() if settings is None else settings
     normal = np.asarray(normal, np.float64)
     normal = normal / np.linalg.norm(normal)
     feet, cls, view, eye = [], [], [], []
     for i in frames:
         i = int(i)
-        hits = boundary_floor_hits(cameras, i, labels[i], normal, offset, thing_classes, floor_classes, min_rows)
+        hits = boundary_floor_hits(cameras, i, labels[i], normal, offset, thing_classes, floor_classes, s.min_rows)
         if hits is None:
             continue
         r, c, o, d, t, cos = hits
-        s = t / (min(cameras.fx[i], cameras.fy[i]) * np.abs(cos))  # one pixel along a grazing ray
-        ok = s < tolerance
+        moved = t / (min(cameras.fx[i], cameras.fy[i]) * np.abs(cos))  # one pixel along a grazing ray
+        ok = moved < s.tolerance
         feet.append(o[ok] + t[ok, None] * d[ok]), cls.append(labels[i][r[ok], c[ok]]), eye.append(o[ok])
         view.append(np.full(int(ok.sum()), i))
     empty = StandingFaces(np.zeros((0, 3)), np.zeros((0, 3)), np.zeros(0), np.zeros(0, np.int64), np.zeros(0),
@@ -209,17 +229,17 @@ def standing_faces(cameras, frames, labels: dict[int, np.ndarray], normal: np.nd
         return empty
     feet, cls, view = np.concatenate(feet), np.concatenate(cls).astype(np.int64), np.concatenate(view)
     eye = np.concatenate(eye)
-    top = _line_tops(cameras, frames, labels, feet, normal, step, max_height, stuff_classes, carve_share,
-                     min_carve_views)
+    top = _line_tops(cameras, frames, labels, feet, normal, step, max_height, stuff_classes, s.carve_share,
+                     s.min_carve_views)
     keep = top > 0
     feet, cls, view, top, eye = feet[keep], cls[keep], view[keep], top[keep], eye[keep]
-    rng = np.random.default_rng(seed)
+    rng = np.random.default_rng(s.seed)
     basis = _plane_basis(normal)
     faces = []
     for c in np.unique(cls):
         m = cls == c
-        faces += [(c,) + f for f in _runs(feet[m], view[m], top[m], eye[m], basis, threshold, min_views,
-                                          iterations, rng)]
+        faces += [(c,) + f for f in _runs(feet[m], view[m], top[m], eye[m], basis, threshold, s.min_views,
+                                          s.iterations, rng)]
     if not faces:
         return empty
     c, start, end, height, rms, views, facing = zip(*faces)

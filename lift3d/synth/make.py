@@ -22,13 +22,13 @@ from __future__ import annotations
 import json
 import shutil
 import time
-from dataclasses import replace
+from dataclasses import dataclass, replace
 from pathlib import Path
 
 import numpy as np
 
 from lift3d.data.cameras import Cameras
-from lift3d.data.scene import Segment, SceneWriter
+from lift3d.data.scene import FrameGroundTruth, FramePseudoLabels, Segment, SceneWriter
 from lift3d.errors import InputError
 from lift3d.synth.cameras import MIN_CLEARANCE, PATHS, PATHS_OF_KIND
 from lift3d.synth.cameras import camera_path as plan_camera_path
@@ -64,16 +64,72 @@ FLAT_RATIO = 0.3
 NOISE_FLAGS = {"view_confusion": "--view-confusion", "score_informativeness": "--score-informativeness"}
 
 
-def _check_args(out, kind, seed, noise, n_views, width, height, camera_path_name, depth, pose_noise,
-                overrides, room_shape="auto", clutter="none") -> NoiseConfig:
-    if not isinstance(seed, (int, np.integer)) or not 0 <= seed < 2**63:
-        raise InputError("--seed", f"must be a non-negative integer, got {seed!r}")
-    if kind not in KINDS:
-        raise InputError("--kind", f"{kind!r} is not one of {', '.join(KINDS)}")
+@dataclass(frozen=True)
+class SynthOptions:
+    """What :func:`make_scene` builds: the options of ``lift3d synth`` (``docs/synth.md``). The same options give
+    the same files byte for byte; all of them are recorded in ``transforms.json`` under ``lift3d_synth``.
+
+    Attributes
+    ----------
+    kind : {"indoor", "outdoor"}
+        A furnished room (bounded) or a long street with sky (unbounded).
+    seed : int
+        Seed of everything random (the room, its objects, textures, lighting, cameras and every noise).
+    noise : {"clean", "moderate", "hard", "view-correlated"} or NoiseConfig
+        The simulated segmenter's errors (``docs/synth.md``).
+    n_views : int
+        Number of frames.
+    width, height : int
+        Image size in pixels.
+    camera_path : {"auto", "orbit", "walk", "handheld"}
+        How the camera moves; ``auto`` picks one from the seed (``orbit`` is indoor only).
+    depth : {"sensor", "exact", "none"}
+        The depth maps of ``depth_file_path``: a structured-light sensor's (noise, holes, quantisation), the
+        exact ones, or none (images only). The exact depth is always written as ground truth
+        (``gt_depth_file_path``).
+    pose_noise : (float, float)
+        RMS rotation (degrees) and translation (centimetres) noise of the written poses; rendering uses the
+        true ones (``gt_transform_matrix``).
+    view_confusion : float, optional
+        Share of things and stuff patches with an active view-correlated confuser (default: the preset's).
+    score_informativeness : float, optional
+        How much segment scores say about correctness, 0-1 (default: the preset's).
+    room_shape : str
+        Indoor: the room's shape, one of ``auto`` (the seed's rectangle or L), ``box``, ``l``, ``polygon``,
+        ``hexagon``, ``sloped``, ``vaulted``, ``round``, ``open`` (``docs/synth.md``).
+    clutter : {"none", "auto", "dense"}
+        Indoor: ``dense`` fills the room with 30-40 things (rows of one class, thin and flat things, things on
+        tables); ``auto`` lets the seed choose (dense in one room of three).
+    """
+
+    kind: str = "indoor"
+    seed: int = 0
+    noise: str | NoiseConfig = "moderate"
+    n_views: int = 60
+    width: int = 128
+    height: int = 128
+    camera_path: str = "auto"
+    depth: str = "sensor"
+    pose_noise: tuple[float, float] = (0.0, 0.0)
+    view_confusion: float | None = None
+    score_informativeness: float | None = None
+    room_shape: str = "auto"
+    clutter: str = "none"
+
+
+def _check_args(out, options: SynthOptions) -> NoiseConfig:
+    """The segmenter noise ``options`` ask for; :class:`InputError` naming the flag of the first bad option, or
+    ``out`` when it is a folder ``make_scene`` may not write to."""
+    o = options
+    overrides = {"view_confusion": o.view_confusion, "score_informativeness": o.score_informativeness}
+    if not isinstance(o.seed, (int, np.integer)) or not 0 <= o.seed < 2**63:
+        raise InputError("--seed", f"must be a non-negative integer, got {o.seed!r}")
+    if o.kind not in KINDS:
+        raise InputError("--kind", f"{o.kind!r} is not one of {', '.join(KINDS)}")
     try:
-        cfg = noise_config(noise)
+        cfg = noise_config(o.noise)
     except KeyError:
-        raise InputError("--noise", f"{noise!r} is not one of {', '.join(PRESETS)}") from None
+        raise InputError("--noise", f"{o.noise!r} is not one of {', '.join(PRESETS)}") from None
     for name, value in overrides.items():
         if value is not None:
             if not isinstance(value, (int, float, np.floating)) or not 0.0 <= float(value) <= 1.0:
@@ -81,32 +137,32 @@ def _check_args(out, kind, seed, noise, n_views, width, height, camera_path_name
     cfg = replace(cfg, **{k: float(v) for k, v in overrides.items() if v is not None})
     for field_name, problem in cfg.problems():
         raise InputError(NOISE_FLAGS.get(field_name, f"--noise ({field_name})"), problem)
-    if camera_path_name not in CAMERA_PATHS:
-        raise InputError("--camera-path", f"{camera_path_name!r} is not one of {', '.join(CAMERA_PATHS)}")
-    if camera_path_name != "auto" and camera_path_name not in PATHS_OF_KIND[kind]:
-        raise InputError("--camera-path", f"{camera_path_name!r} needs a room; {kind} scenes take "
-                                          f"{', '.join(('auto',) + PATHS_OF_KIND[kind])}")
-    if depth not in DEPTH_MODES:
-        raise InputError("--depth", f"{depth!r} is not one of {', '.join(DEPTH_MODES)}")
-    if room_shape not in ROOM_SHAPES:
-        raise InputError("--room-shape", f"{room_shape!r} is not one of {', '.join(ROOM_SHAPES)}")
-    if room_shape != "auto" and kind != "indoor":
-        raise InputError("--room-shape", f"{room_shape!r} needs a room; {kind} scenes take auto")
-    if clutter not in CLUTTER_LEVELS:
-        raise InputError("--clutter", f"{clutter!r} is not one of {', '.join(CLUTTER_LEVELS)}")
-    if clutter == "dense" and kind != "indoor":
-        raise InputError("--clutter", f"dense needs a room; {kind} scenes take none or auto")
+    if o.camera_path not in CAMERA_PATHS:
+        raise InputError("--camera-path", f"{o.camera_path!r} is not one of {', '.join(CAMERA_PATHS)}")
+    if o.camera_path != "auto" and o.camera_path not in PATHS_OF_KIND[o.kind]:
+        raise InputError("--camera-path", f"{o.camera_path!r} needs a room; {o.kind} scenes take "
+                                          f"{', '.join(('auto',) + PATHS_OF_KIND[o.kind])}")
+    if o.depth not in DEPTH_MODES:
+        raise InputError("--depth", f"{o.depth!r} is not one of {', '.join(DEPTH_MODES)}")
+    if o.room_shape not in ROOM_SHAPES:
+        raise InputError("--room-shape", f"{o.room_shape!r} is not one of {', '.join(ROOM_SHAPES)}")
+    if o.room_shape != "auto" and o.kind != "indoor":
+        raise InputError("--room-shape", f"{o.room_shape!r} needs a room; {o.kind} scenes take auto")
+    if o.clutter not in CLUTTER_LEVELS:
+        raise InputError("--clutter", f"{o.clutter!r} is not one of {', '.join(CLUTTER_LEVELS)}")
+    if o.clutter == "dense" and o.kind != "indoor":
+        raise InputError("--clutter", f"dense needs a room; {o.kind} scenes take none or auto")
     try:
-        deg, cm = (float(x) for x in pose_noise)
+        deg, cm = (float(x) for x in o.pose_noise)
     except (TypeError, ValueError):
-        raise InputError("--pose-noise", f"needs two numbers DEG CM, got {pose_noise!r}") from None
+        raise InputError("--pose-noise", f"needs two numbers DEG CM, got {o.pose_noise!r}") from None
     if not (0.0 <= deg <= 90.0 and 0.0 <= cm <= 200.0):
         raise InputError("--pose-noise", f"DEG must be in [0, 90] and CM in [0, 200], got {deg:g} {cm:g}")
-    if not isinstance(n_views, (int, np.integer)) or n_views < 2:
-        raise InputError("--views", f"need at least 2 views (one to train on, one to test), got {n_views}")
-    if n_views > 10000:
-        raise InputError("--views", f"{n_views} views is more than the 10000 supported")
-    for flag, size in (("--width", width), ("--height", height)):
+    if not isinstance(o.n_views, (int, np.integer)) or o.n_views < 2:
+        raise InputError("--views", f"need at least 2 views (one to train on, one to test), got {o.n_views}")
+    if o.n_views > 10000:
+        raise InputError("--views", f"{o.n_views} views is more than the 10000 supported")
+    for flag, size in (("--width", o.width), ("--height", o.height)):
         if not isinstance(size, (int, np.integer)) or not 16 <= size <= 4096:
             raise InputError(flag, f"image size must be an integer in [16, 4096], got {size}")
     out = Path(out)
@@ -324,24 +380,7 @@ def _check_pose_noise(true_c2w: np.ndarray, noisy_c2w: np.ndarray, caster: RayCa
 
 
 # --------------------------------------------------------------------------------------------- main
-def make_scene(
-    out: str | Path,
-    kind: str = "indoor",
-    seed: int = 0,
-    noise: str | NoiseConfig = "moderate",
-    n_views: int = 60,
-    width: int = 128,
-    height: int = 128,
-    progress: bool = True,
-    *,
-    camera_path: str = "auto",
-    depth: str = "sensor",
-    pose_noise: tuple[float, float] = (0.0, 0.0),
-    view_confusion: float | None = None,
-    score_informativeness: float | None = None,
-    room_shape: str = "auto",
-    clutter: str = "none",
-) -> dict:
+def make_scene(out: str | Path, options: SynthOptions | None = None, *, progress: bool = True) -> dict:
     """Write a synthetic labelled scene folder with simulated 2D segmenter noise and sensor models.
 
     Every option is recorded in ``transforms.json`` under ``lift3d_synth`` (with what the seed chose: room or
@@ -352,38 +391,11 @@ def make_scene(
     out : str or Path
         Output folder (created; an earlier synthetic scene there is replaced, any other non-empty folder
         is refused).
-    kind : {"indoor", "outdoor"}
-        A furnished room (bounded) or a long street with sky (unbounded).
-    seed : int
-        Seed of everything random (the room, its objects, textures, lighting, cameras and every noise); the
-        same arguments give the same bytes.
-    noise : {"clean", "moderate", "hard", "view-correlated"} or NoiseConfig
-        The simulated segmenter's errors (``docs/synth.md``).
-    n_views : int
-        Number of frames.
-    width, height : int
-        Image size in pixels.
+    options : SynthOptions, optional
+        What to build: kind, seed, segmenter noise, views and their size, camera path, depth, pose noise, room
+        shape and clutter (default: :class:`SynthOptions`'s, a moderate-noise room of 60 views of 128 × 128).
     progress : bool
         Show a progress bar.
-    camera_path : {"auto", "orbit", "walk", "handheld"}
-        How the camera moves; ``auto`` picks one from the seed (``orbit`` is indoor only).
-    depth : {"sensor", "exact", "none"}
-        The depth maps of ``depth_file_path``: a structured-light sensor's (noise, holes, quantisation), the
-        exact ones, or none (images only). The exact depth is always written as ground truth
-        (``gt_depth_file_path``).
-    pose_noise : (float, float)
-        RMS rotation (degrees) and translation (centimetres) noise of the written poses; rendering uses the
-        true ones (``gt_transform_matrix``).
-    view_confusion : float, optional
-        Share of things and stuff patches with an active view-correlated confuser (default: the preset's).
-    score_informativeness : float, optional
-        How much segment scores say about correctness, 0-1 (default: the preset's).
-    room_shape : str
-        Indoor: the room's shape, one of ``auto`` (the seed's rectangle or L), ``box``, ``l``, ``polygon``,
-        ``hexagon``, ``sloped``, ``vaulted``, ``round``, ``open`` (``docs/synth.md``).
-    clutter : {"none", "auto", "dense"}
-        Indoor: ``dense`` fills the room with 30-40 things (rows of one class, thin and flat things, things on
-        tables); ``auto`` lets the seed choose (dense in one room of three).
 
     Returns
     -------
@@ -394,15 +406,16 @@ def make_scene(
     Examples
     --------
     >>> import tempfile
-    >>> rep = make_scene(tempfile.mkdtemp() + "/s", n_views=4, width=32, height=32, progress=False)
+    >>> rep = make_scene(tempfile.mkdtemp() + "/s", SynthOptions(n_views=4, width=32, height=32), progress=False)
     >>> rep["n_views"], rep["noise"]["name"], rep["depth"]["mode"]
     (4, 'moderate', 'sensor')
     """
     started = time.perf_counter()
-    overrides = {"view_confusion": view_confusion, "score_informativeness": score_informativeness}
-    cfg = _check_args(out, kind, seed, noise, n_views, width, height, camera_path, depth, pose_noise, overrides,
-                      room_shape, clutter)
-    n_views, width, height, seed = int(n_views), int(width), int(height), int(seed)
+    options = SynthOptions() if options is None else options
+    cfg = _check_args(out, options)
+    kind, camera_path, depth, pose_noise = options.kind, options.camera_path, options.depth, options.pose_noise
+    room_shape, clutter = options.room_shape, options.clutter
+    n_views, width, height, seed = int(options.n_views), int(options.width), int(options.height), int(options.seed)
     deg, cm = (float(x) for x in pose_noise)
     out = Path(out)
     kind_code = KINDS.index(kind)
@@ -507,9 +520,9 @@ def make_scene(
                 depth_in = view["depth"] if depth == "exact" else None
             name = names[i]
             writer.add_frame(
-                name, view["rgb"], written_c2w[i], (fx, fy, cx, cy), panoptic=pseudo.panoptic,
-                segments=pseudo.segments, gt_panoptic=seg, gt_segments=gt_segments, depth=depth_in,
-                gt_depth=view["depth"], gt_c2w=c2w[i],
+                name, view["rgb"], written_c2w[i], (fx, fy, cx, cy),
+                labels=FramePseudoLabels(pseudo.panoptic, pseudo.segments), depth=depth_in,
+                gt=FrameGroundTruth(seg, gt_segments, depth=view["depth"], c2w=c2w[i]),
             )
             hit = view["hit"]
             gt_inst = np.where(np.isin(view["category"], list(thing_ids)), seg, 0)

@@ -36,7 +36,7 @@ from lift3d.model.perceptual import build_perceptual_prior
 from lift3d.model.run import LoadedRun
 from lift3d.model.run_folder import RunFolder
 from lift3d.render.rays import RayGenerator
-from lift3d.render.renderer import RenderOutputs
+from lift3d.render.renderer import RenderOptions, RenderOutputs
 from lift3d.train.data import TrainingData
 from lift3d.train.image_depth import CACHE_DIR as IMAGE_DEPTH_CACHE
 from lift3d.train.image_depth import flat_info, frames_without_depth, image_depth_targets
@@ -297,9 +297,9 @@ class Trainer:
         depth_target = batch.depth if self.cfg.losses.depth > 0 or self.cfg.losses.image_depth > 0 else None
         # Samples around a target from the images span ±2σ of it (DS-NeRF's Gaussian needs them).
         spread = 2.0 * batch.depth_sigma if depth_target is not None and batch.depth_sigma is not None else None
-        out = self.forward_model(batch.origins, batch.dirs, training=True, with_labels=self.model.trains_labels,
-                                 generator=self.generator, proposal_anneal=anneal, depth_target=depth_target,
-                                 depth_spread=spread)
+        options = RenderOptions(training=True, with_labels=self.model.trains_labels, proposal_anneal=anneal)
+        out = self.forward_model(batch.origins, batch.dirs, options, generator=self.generator,
+                                 depth_target=depth_target, depth_spread=spread)
         terms = self.model.get_loss_dict(out, batch, progress=progress, generator=self.generator,
                                          perceptual=self.perceptual)
         terms["total"] = sum(terms.values())

@@ -75,7 +75,7 @@ def write_html(points_or_path: Any, path: str | Path, *, classes: Any = None, up
     Path
     """
     geom = as_geometry(points_or_path)
-    found = _with_files_beside(geom, {"classes": classes}).get("classes")
+    found, _ = _with_files_beside(geom, classes)
     table = as_class_table(found) if found is not None else []
     hidden = _resolve_hidden(hide, table)
     if hidden:

@@ -24,7 +24,7 @@ Examples
 >>> import numpy as np
 >>> xyz = np.random.default_rng(0).uniform(0, 1, (200, 3))
 >>> pl = plot_instances({"xyz": xyz, "semantic": np.full(200, 3), "instance": np.repeat([1, 2], 100)},
-...                     window_size=(320, 160))
+...                     PlotStyle(window_size=(320, 160)))
 >>> pl.shape, pl.window_size  # instances | classes | legend
 ((1, 3), [320, 160])
 >>> pl.close()
@@ -37,7 +37,7 @@ import json
 import math
 import os
 import sys
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any, Iterable, Mapping, Sequence
 
@@ -59,6 +59,7 @@ from lift3d.viz.palette import (
 
 __all__ = [
     "VIEWS",
+    "PlotStyle",
     "LabelledGeometry",
     "InstanceBox",
     "as_geometry",
@@ -84,6 +85,47 @@ _ISO_ELEVATION = 45.0
 _ISO_AZIMUTH = -35.0
 # Legends and instance labels list at most this many entries (a longer list is unreadable in a picture).
 _MAX_LEGEND = 24
+#: Picture size (pixels) of a view when its :class:`PlotStyle` gives none.
+VIEW_WINDOW_SIZE = (1600, 800)
+#: Picture size (pixels) of a turntable when its :class:`PlotStyle` gives none (small: a GIF grows with it).
+TURNTABLE_WINDOW_SIZE = (960, 400)
+
+
+@dataclass(frozen=True)
+class PlotStyle:
+    """How :func:`plot_instances`, :func:`save_views` and :func:`save_turntable` draw a labelled cloud or mesh
+    (the "3D pictures" flags of ``lift3d plot``).
+
+    Attributes
+    ----------
+    boxes : bool
+        Draw a box and an ``id class`` label per instance (labels only in the instance view).
+    window_size : (int, int) or None
+        Picture size in pixels (views and legend together); None: :data:`VIEW_WINDOW_SIZE`, for a turntable
+        :data:`TURNTABLE_WINDOW_SIZE`.
+    point_size : float, optional
+        Point size in pixels; default :func:`auto_point_size`. Ignored for meshes.
+    hide : tuple of str or int
+        Classes (names or ids) to leave out.
+    cutaway : bool
+        Cut away stuff on the bounding-box sides facing the camera (near walls, the ceiling from above;
+        see :func:`cutaway_mask`) so the inside of a room is visible. Instances are never cut.
+    up : str
+        Up axis of the scene (``z`` for lift3d's synthetic scenes and most exports).
+    legend : bool
+        A panel on the right with the names and colours of the classes present.
+    title : str, optional
+        Text in the upper left corner of each view; default the file name.
+    """
+
+    boxes: bool = False
+    window_size: tuple[int, int] | None = None
+    point_size: float | None = None
+    hide: tuple[str | int, ...] = ()
+    cutaway: bool = True
+    up: str = "z"
+    legend: bool = True
+    title: str | None = None
 
 
 # ------------------------------------------------------------------------------------------ geometry in
@@ -554,14 +596,16 @@ class InstanceFigure:
         What is drawn (after ``hide``).
     """
 
-    def __init__(self, geom: LabelledGeometry, table: Sequence[Category], *, boxes: Sequence[InstanceBox] = (),
-                 window_size: tuple[int, int] = (1600, 800), point_size: float | None = None, up: str = "z",
-                 legend: bool = True, title: str = "", cutaway: bool = True, off_screen: bool | None = True):
+    def __init__(self, geom: LabelledGeometry, table: Sequence[Category], style: PlotStyle | None = None, *,
+                 boxes: Sequence[InstanceBox] = (), off_screen: bool | None = True):
         import pyvista as pv
+
+        style = PlotStyle() if style is None else style
+        up, legend, title, point_size = style.up, style.legend, style.title or "", style.point_size
 
         self.geometry = geom
         self.up = up
-        self.cutaway = cutaway
+        self.cutaway = style.cutaway
         self.boxes = list(boxes)
         lo, hi = geom.xyz.min(0).astype(float), geom.xyz.max(0).astype(float)
         self.center = (lo + hi) / 2.0
@@ -579,7 +623,7 @@ class InstanceFigure:
         inst_rgb[thing] = instance_color(geom.instance[thing])
         self._colors = (inst_rgb, sem_rgb)
 
-        window_size = (int(window_size[0]), int(window_size[1]))
+        window_size = tuple(int(x) for x in (style.window_size or VIEW_WINDOW_SIZE))
         legend_items = []
         if legend and geom.has_semantic:
             legend_items = [(names.get(int(c), "void" if c <= 0 else f"class_{int(c)}"),
@@ -658,18 +702,11 @@ class InstanceFigure:
 
 def plot_instances(
     points_or_path: Any,
+    style: PlotStyle | None = None,
     *,
     classes: Any = None,
     instances: str | Path | Sequence[InstanceBox] | None = None,
     view: str = "iso",
-    boxes: bool = False,
-    window_size: tuple[int, int] = (1600, 800),
-    point_size: float | None = None,
-    hide: Iterable[str | int] = (),
-    cutaway: bool = True,
-    up: str = "z",
-    legend: bool = True,
-    title: str | None = None,
     off_screen: bool | None = True,
 ):
     """Instance-coloured and class-coloured views of labelled points or a mesh, side by side.
@@ -679,31 +716,17 @@ def plot_instances(
     points_or_path : path, dict, object, PolyData or array
         What :func:`as_geometry` accepts (a labelled ``points.ply`` / ``mesh.ply``, arrays, the export API's
         dataclass).
+    style : PlotStyle, optional
+        Boxes, picture and point size, hidden classes, cutaway, up axis, legend and title (default:
+        :class:`PlotStyle`'s).
     classes : path or class table, optional
         Names and colours of the class ids. Default: ``classes.json`` beside the file, if any; ids without a
         table get stable hash colours and ``class_<id>`` names.
     instances : path or list of InstanceBox, optional
-        Boxes for ``boxes=True``. Default: ``instances.json`` beside the file, else boxes computed from the
+        Boxes for ``style.boxes``. Default: ``instances.json`` beside the file, else boxes computed from the
         points (axis-aligned).
     view : str
         Camera, one of :data:`VIEWS`.
-    boxes : bool
-        Draw a box and an ``id class`` label per instance (labels only in the instance view).
-    window_size : (int, int)
-        Picture size in pixels (views and legend together).
-    point_size : float, optional
-        Point size in pixels; default :func:`auto_point_size`. Ignored for meshes.
-    hide : iterable of str or int
-        Classes (names or ids) to leave out.
-    cutaway : bool
-        Cut away stuff on the bounding-box sides facing the camera (near walls, the ceiling from above;
-        see :func:`cutaway_mask`) so the inside of a room is visible. Instances are never cut.
-    up : str
-        Up axis of the scene (``z`` for lift3d's synthetic scenes and most exports).
-    legend : bool
-        A panel on the right with the names and colours of the classes present.
-    title : str, optional
-        Text in the upper left corner of each view; default the file name.
     off_screen : bool or None
         True renders without a window (PNG, GIF); False opens a window on ``show()``.
 
@@ -716,37 +739,35 @@ def plot_instances(
     --------
     >>> import numpy as np
     >>> pts = {"xyz": np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0]]), "semantic": [1, 2, 2], "instance": [0, 4, 4]}
-    >>> pl = plot_instances(pts, classes=[{"id": 2, "name": "chair", "isthing": 1, "color": [200, 0, 0]}],
-    ...                     view="top", boxes=True, window_size=(300, 150))
+    >>> pl = plot_instances(pts, PlotStyle(boxes=True, window_size=(300, 150)), view="top",
+    ...                     classes=[{"id": 2, "name": "chair", "isthing": 1, "color": [200, 0, 0]}])
     >>> img = pl.screenshot(return_img=True); pl.close()
     >>> img.shape
     (150, 300, 3)
     """
-    return _figure(points_or_path, classes=classes, instances=instances, view=view, boxes=boxes,
-                   window_size=window_size, point_size=point_size, hide=hide, cutaway=cutaway, up=up,
-                   legend=legend, title=title, off_screen=off_screen).plotter
+    return _figure(points_or_path, style, classes=classes, instances=instances, view=view,
+                   off_screen=off_screen).plotter
 
 
-def _figure(points_or_path: Any, *, classes: Any = None, instances: Any = None, view: str = "iso",
-            boxes: bool = False, window_size: tuple[int, int] = (1600, 800), point_size: float | None = None,
-            hide: Iterable[str | int] = (), cutaway: bool = True, up: str = "z", legend: bool = True,
-            title: str | None = None, off_screen: bool | None = True) -> InstanceFigure:
+def _figure(points_or_path: Any, style: PlotStyle | None = None, *, classes: Any = None, instances: Any = None,
+            view: str = "iso", off_screen: bool | None = True) -> InstanceFigure:
     """Build an :class:`InstanceFigure` aimed at ``view`` (the body of :func:`plot_instances`)."""
+    style = PlotStyle() if style is None else style
     geom = as_geometry(points_or_path)
     if view not in VIEWS:
         raise InputError("--views", f"unknown view {view!r} (choose from {', '.join(VIEWS)})")
-    _axis(up)  # validate before any work
+    _axis(style.up)  # validate before any work
     if classes is None and geom.source is not None:
         classes = classes_beside(geom.source)
     table = as_class_table(classes)
-    hidden = _resolve_hidden(hide, table)
+    hidden = _resolve_hidden(style.hide, table)
     if hidden:
         geom = geom.subset(~np.isin(geom.semantic, sorted(hidden)))
     if len(geom.xyz) == 0:
         raise InputError(geom.source or "points", "nothing to draw (no points" +
                          (" left after --hide)" if hidden else ")"))
     box_list: list[InstanceBox] = []
-    if boxes:
+    if style.boxes:
         if instances is None and geom.source is not None and geom.source.with_name("instances.json").is_file():
             instances = geom.source.with_name("instances.json")
         if isinstance(instances, (str, Path)):
@@ -757,10 +778,9 @@ def _figure(points_or_path: Any, *, classes: Any = None, instances: Any = None, 
             box_list = instance_boxes(geom, table)
         present = set(np.unique(geom.instance).tolist())
         box_list = [b for b in box_list if b.id in present]  # hidden classes take their boxes along
-    if title is None:
-        title = _title(geom)
-    fig = InstanceFigure(geom, table, boxes=box_list, window_size=window_size, point_size=point_size, up=up,
-                         legend=legend, title=title, cutaway=cutaway, off_screen=off_screen)
+    if style.title is None:
+        style = replace(style, title=_title(geom))
+    fig = InstanceFigure(geom, table, style, boxes=box_list, off_screen=off_screen)
     fig.set_view(view)
     return fig
 
@@ -777,24 +797,26 @@ def _screenshot(pl) -> np.ndarray:
     return np.asarray(img)[..., :3]
 
 
-def _with_files_beside(geom: LabelledGeometry, plot_kwargs: dict) -> dict:
-    """Resolve ``classes.json`` / ``instances.json`` beside the input once, for every picture of it."""
-    kw = dict(plot_kwargs)
-    if kw.get("classes") is None and geom.source is not None:
+def _with_files_beside(geom: LabelledGeometry, classes: Any, instances: Any = None, *,
+                       boxes: bool = False) -> tuple[Any, Any]:
+    """``classes`` and (for ``boxes``) ``instances``, with ``classes.json`` / ``instances.json`` beside the input
+    read once, for every picture of it."""
+    if classes is None and geom.source is not None:
         found = classes_beside(geom.source)
-        kw["classes"] = read_class_table(found) if found else None
-    elif isinstance(kw.get("classes"), (str, Path)):
-        kw["classes"] = read_class_table(kw["classes"])
-    if kw.get("boxes") and kw.get("instances") is None and geom.source is not None:
+        classes = read_class_table(found) if found else None
+    elif isinstance(classes, (str, Path)):
+        classes = read_class_table(classes)
+    if boxes and instances is None and geom.source is not None:
         beside = geom.source.with_name("instances.json")
-        kw["instances"] = read_instance_boxes(beside) if beside.is_file() else None
-    elif isinstance(kw.get("instances"), (str, Path)):
-        kw["instances"] = read_instance_boxes(kw["instances"])
-    return kw
+        instances = read_instance_boxes(beside) if beside.is_file() else None
+    elif isinstance(instances, (str, Path)):
+        instances = read_instance_boxes(instances)
+    return classes, instances
 
 
-def save_views(points_or_path: Any, output_dir: str | Path, views: Sequence[str] = ("iso",), *,
-               stem: str | None = None, **plot_kwargs) -> list[Path]:
+def save_views(points_or_path: Any, output_dir: str | Path, views: Sequence[str] = ("iso",),
+               style: PlotStyle | None = None, *, classes: Any = None,
+               instances: str | Path | Sequence[InstanceBox] | None = None, stem: str | None = None) -> list[Path]:
     """Write one PNG per view: ``<output_dir>/<stem>_<view>.png`` (instances | classes | legend).
 
     Parameters
@@ -805,10 +827,12 @@ def save_views(points_or_path: Any, output_dir: str | Path, views: Sequence[str]
         Created if needed.
     views : sequence of str
         Names from :data:`VIEWS`.
+    style : PlotStyle, optional
+        How to draw (as :func:`plot_instances`).
+    classes, instances : optional
+        As :func:`plot_instances`; read once for all views.
     stem : str, optional
         File name prefix; default the input file's stem (``points``), else ``points``.
-    **plot_kwargs
-        Passed to :func:`plot_instances` (``classes``, ``boxes``, ``window_size``, ``hide``, ...).
 
     Returns
     -------
@@ -818,12 +842,13 @@ def save_views(points_or_path: Any, output_dir: str | Path, views: Sequence[str]
     for v in views:
         if v not in VIEWS:
             raise InputError("--views", f"unknown view {v!r} (choose from {', '.join(VIEWS)})")
+    style = PlotStyle() if style is None else style
     geom = as_geometry(points_or_path)
-    kw = _with_files_beside(geom, plot_kwargs)
+    classes, instances = _with_files_beside(geom, classes, instances, boxes=style.boxes)
     stem = stem or (geom.source.stem if geom.source else "points")
     paths = []
     for v in views:
-        fig = _figure(geom, view=v, off_screen=True, **kw)
+        fig = _figure(geom, style, classes=classes, instances=instances, view=v, off_screen=True)
         try:
             img = _screenshot(fig.plotter)
         finally:
@@ -839,8 +864,9 @@ def _title(geom: LabelledGeometry) -> str:
     return f"{name}: {len(geom.xyz):,} {'vertices' if geom.is_mesh else 'points'}"
 
 
-def save_turntable(points_or_path: Any, path: str | Path, *, frames: int = 36, fps: int = 12,
-                   elevation: float = 35.0, **plot_kwargs) -> Path:
+def save_turntable(points_or_path: Any, path: str | Path, style: PlotStyle | None = None, *, classes: Any = None,
+                   instances: str | Path | Sequence[InstanceBox] | None = None, frames: int = 36, fps: int = 12,
+                   elevation: float = 35.0) -> Path:
     """Orbit both views once around the scene's up axis and write a GIF (or MP4) through PyVista.
 
     Parameters
@@ -850,14 +876,17 @@ def save_turntable(points_or_path: Any, path: str | Path, *, frames: int = 36, f
     path : str or Path
         ``.gif`` (PyVista's ``open_gif``, needs only imageio) or ``.mp4`` (``open_movie``, needs the
         ``imageio-ffmpeg`` package).
+    style : PlotStyle, optional
+        How to draw (as :func:`plot_instances`); without a ``window_size``, :data:`TURNTABLE_WINDOW_SIZE` keeps
+        GIFs small.
+    classes, instances : optional
+        As :func:`plot_instances`.
     frames : int
         Frames per revolution.
     fps : int
         Playback speed.
     elevation : float
         Camera elevation in degrees.
-    **plot_kwargs
-        Passed to :func:`plot_instances`; ``window_size`` defaults to 960 × 400 to keep GIFs small.
 
     Returns
     -------
@@ -876,10 +905,12 @@ def save_turntable(points_or_path: Any, path: str | Path, *, frames: int = 36, f
                                                 "imageio-ffmpeg); --turntable gif works without it")
     if frames < 2:
         raise InputError("--frames", f"a turntable needs at least 2 frames, got {frames}")
+    style = PlotStyle() if style is None else style
+    if style.window_size is None:
+        style = replace(style, window_size=TURNTABLE_WINDOW_SIZE)
     geom = as_geometry(points_or_path)
-    kw = _with_files_beside(geom, plot_kwargs)
-    kw.setdefault("window_size", (960, 400))
-    fig = _figure(geom, view="iso", off_screen=True, **kw)
+    classes, instances = _with_files_beside(geom, classes, instances, boxes=style.boxes)
+    fig = _figure(geom, style, classes=classes, instances=instances, view="iso", off_screen=True)
     pl = fig.plotter
     path.parent.mkdir(parents=True, exist_ok=True)
     tmp = path.with_name(f".{path.stem}.{os.getpid()}.tmp{suffix}")

@@ -13,10 +13,11 @@ from robust_helpers import tiny
 def synth_scene(tmp_path_factory) -> Path:
     """A small synthetic indoor scene (8 views of 32×32, scene_box, depth, GT panoptic and points).
     Treat as read-only: copy it (``robust_helpers.copy_scene``) before changing anything."""
-    from lift3d.synth import make_scene
+    from lift3d.synth import SynthOptions, make_scene
 
     root = tmp_path_factory.mktemp("robust_scene") / "room"
-    make_scene(root, kind="indoor", seed=3, noise="moderate", n_views=8, width=32, height=32, progress=False)
+    make_scene(root, SynthOptions(kind="indoor", seed=3, noise="moderate", n_views=8, width=32, height=32),
+               progress=False)
     return root
 
 

@@ -58,7 +58,7 @@ def test_normalisation_is_scale_equivariant(synth_scene, tmp_path, source, s):
 
 
 def _train_eval_export(root, out):
-    from lift3d.eval.evaluate import evaluate_run
+    from lift3d.eval.evaluate import EvalOptions, evaluate_run
     from lift3d.export import export_run
     from lift3d.train.trainer import train
 
@@ -68,7 +68,8 @@ def _train_eval_export(root, out):
     result = train(root, preset="fast", output_dir=out, progress=False, print_summary=False,
                    overrides=tiny(optim={"steps": 20}, trainer={"checkpoint_every": 0, "eval_images": 1},
                                   losses={"depth": 0.0}))
-    metrics = evaluate_run(result.run.path, split="test", with_points3d=False, progress=False, timing_repeats=0)
+    metrics = evaluate_run(result.run.path, EvalOptions(split="test", with_points3d=False, timing_repeats=0),
+                           progress=False)
     summary = export_run(result.run.path, out / "export", source="rays", num_points=4000)
     from lift3d import load_labelled_points
 

@@ -15,7 +15,7 @@ from typing import Any
 import numpy as np
 
 from lift3d.sfm.planes import ceiling_points, enclosed_segments, label_support, wall_reach
-from lift3d.sfm.standing import standing_faces, stereo_agreement
+from lift3d.sfm.standing import StandingSettings, standing_faces, stereo_agreement
 from lift3d.train.target_steps.state import TargetContext, TargetState, TargetStep, ViewTargets, setting
 
 
@@ -216,12 +216,12 @@ class StandingThings(TargetStep):
             return {}
         f, fn, fd = state.floor
         threshold = context.threshold
+        settings = StandingSettings(tolerance=self.tolerance * threshold, min_views=self.min_views,
+                                    min_rows=context.plane.boundary_rows, carve_share=self.carve_share,
+                                    min_carve_views=self.carve_views, iterations=self.iterations, seed=self.seed)
         faces = standing_faces(scene.cameras, context.frames, labels, fn, fd, state.planes.classes[f],
                                scene.thing_ids, scene.stuff_ids, threshold=threshold, step=self.step * threshold,
-                               max_height=state.height(context), tolerance=self.tolerance * threshold,
-                               min_views=self.min_views, min_rows=context.plane.boundary_rows,
-                               carve_share=self.carve_share, min_carve_views=self.carve_views,
-                               iterations=self.iterations, seed=self.seed)
+                               max_height=state.height(context), settings=settings)
         index = {fr.name: k for k, fr in enumerate(scene.frames)}
         met, agreeing = stereo_agreement(faces, scene.cameras, [index[n] for n in dense.frame_names], labels,
                                          dense.depth, tolerance=self.depth_tolerance * threshold)
