@@ -754,3 +754,12 @@ def test_eval_reports_3d_iou_per_class_and_the_smallest_objects(trained, evaluat
     sizes = [o["size"] for o in p["objects"]]
     assert sizes == sorted(sizes) and all(0 <= o["iou"] <= 1 and o["class"] in names for o in p["objects"])
     assert "3D point IoU per class" in evaluated["stdout"] and "smallest" in evaluated["stdout"]
+
+
+def test_the_smallest_objects_line_skips_objects_with_too_few_gt_points_to_measure():
+    objects = [{"class": "streetlight", "points": 1, "size": 0.0, "iou": 0.0},
+               {"class": "cup", "points": 29, "size": 0.11, "iou": 0.2},
+               {"class": "car", "points": 900, "size": 4.2, "iou": 0.8}]
+    text = format_eval_table({"points3d": {"objects": objects, "per_class": {"car": 0.5}}})
+    line = next(x for x in text.splitlines() if x.startswith("smallest"))
+    assert "streetlight" not in line and line.index("cup 0.11 m 0.200 (lost)") < line.index("car 4.20 m 0.800")
