@@ -313,7 +313,8 @@ def test_instance_cleanup_folds_a_crumb_into_its_object():
     state = PointState(_labelled(xyz, [5] * len(xyz)), link_radius=0.05)
     state.points.instance = np.r_[np.ones(len(obj), np.int32), np.full(3, 2, np.int32)]
     context = _context(cameras=None, pseudo_labels=None)
-    counts = InstanceCleanup(merge=False, min_support_views=0, crumb_points=10).apply(state, context)
+    step = InstanceCleanup(merge=False, min_support_views=0, keep_confirmed_views=0, crumb_points=10)
+    counts = step.apply(state, context)
     assert counts["crumbs_folded"] == 1 and (state.points.instance == 1).all()
     with pytest.raises(InputError, match="--crumb-points"):
         InstanceCleanup(crumb_points=-1).check()

@@ -275,3 +275,42 @@ def test_a_whole_object_of_mostly_filled_points_does_not_join_a_smaller_neighbou
     assert joined == 1
     assert out[0] != out[241] and (out[:241] == out[0]).all()             # the two tables stay apart
     assert (out[441:] == out[241]).all()                                  # the patch joined the second table
+
+
+def test_a_small_thing_the_views_confirm_keeps_its_class_instead_of_folding_into_the_table():
+    # A figurine (class 20, 40 points: a crumb at crumb_points 100) stands in front of a table (class 6). The
+    # table's segment covers the views everywhere but where the figurine's own class-20 segment is. Folding it
+    # would make it table; confirmed in all three views, it stays a figurine. Unconfirmed (its 2D segment says
+    # table), it folds as before.
+    from lift3d.export.cleanup import SEGMENT_CLASS_SHIFT, class_segments
+
+    rng = np.random.default_rng(9)
+    table = _plate(-1.0, 1.0, 4000, rng, y=0.2)
+    figurine = np.c_[rng.uniform(-0.1, 0.1, 40), np.zeros(40), rng.uniform(0.3, 0.7, 40)]
+    xyz = np.concatenate([table, figurine])
+    semantic = np.array([6] * 4000 + [20] * 40)
+    instance = np.array([1] * 4000 + [2] * 40)
+    cams = _views()
+
+    def maps_with(figurine_class):
+        out = []
+        for m in _segment_maps(cams, [(5, -1.0, 1.0)]):
+            fig = _segment_maps(cams, [(7, -0.1, 0.1)])[len(out)] > 0
+            sem = np.where(fig, figurine_class, 6)
+            out.append(class_segments(sem, np.where(fig, 7, m)))
+        return out
+
+    kwargs = dict(cameras=cams, frames=np.arange(3), link_radius=0.1, crumb_points=100)
+    confirmed = maps_with(20)
+    assert (confirmed[0][confirmed[0] > 0] >> SEGMENT_CLASS_SHIFT).min() == 6
+    sem, inst, keep, stats = clean_instances(xyz, xyz, semantic, instance, segments_of=lambda f: confirmed[f],
+                                             rules=CleanupRules(keep_confirmed_views=2), **kwargs)
+    assert keep.all() and (sem[4000:] == 20).all() and len(np.unique(inst[4000:])) == 1
+    assert inst[4000] != inst[0] and stats["confirmed_kept"] == 1 and stats["instances_after"] == 2
+    sem_off, inst_off, _, stats_off = clean_instances(xyz, xyz, semantic, instance,
+                                                      segments_of=lambda f: confirmed[f], **kwargs)
+    assert (sem_off[4000:] == 6).all() and stats_off["confirmed_kept"] == 0, "off (the default rule): it folds"
+    unconfirmed = maps_with(6)
+    sem_u, _, _, stats_u = clean_instances(xyz, xyz, semantic, instance, segments_of=lambda f: unconfirmed[f],
+                                           rules=CleanupRules(keep_confirmed_views=2), **kwargs)
+    assert (sem_u[4000:] == 6).all() and stats_u["confirmed_kept"] == 0, "the views call it table: it folds"

@@ -25,6 +25,12 @@ fix that, using the views the field was trained from:
    the majority (class, instance) of the points around it (within ``4 × link_radius``, outside crumbs) and
    disappears into it; with no such point a crumb is dropped.
 
+A thing the training views agree on keeps its class: an instance to fold whose class the 2D pseudo-labels
+confirm in at least ``keep_confirmed_views`` of the voting views (most of its visible points on one 2D segment
+of its own class) folds only into an instance of that class; where its surroundings are of another class (a
+figurine on a table, a toy plane on the floor) it stays an instance of its own. Segment ids carry their class
+for this (:func:`class_segments`).
+
 Counts before and after each step go to the export's ``metadata.json`` (the ``instance-cleanup`` step's record).
 
 Examples
@@ -238,6 +244,43 @@ def supporting_views(votes: np.ndarray, old_instance: np.ndarray, new_instance: 
     return out
 
 
+#: A :func:`class_segments` id is ``class << SEGMENT_CLASS_SHIFT | segment``.
+SEGMENT_CLASS_SHIFT = 32
+
+
+def class_segments(semantic: np.ndarray, instance: np.ndarray) -> np.ndarray:
+    """2D thing-segment ids that carry their class: ``class << SEGMENT_CLASS_SHIFT | segment`` on thing pixels
+    (``instance`` > 0), 0 elsewhere. Two pixels share an id exactly when they share a segment, so merging by
+    these ids is merging by segments.
+
+    Examples
+    --------
+    >>> class_segments(np.array([[7, 2]]), np.array([[3, 0]])).tolist() == [[7 << SEGMENT_CLASS_SHIFT | 3, 0]]
+    True
+    """
+    semantic, instance = np.asarray(semantic, np.int64), np.asarray(instance, np.int64)
+    return np.where(instance > 0, (semantic << SEGMENT_CLASS_SHIFT) | instance, 0)
+
+
+def confirming_views(votes: np.ndarray, old_instance: np.ndarray, new_instance: np.ndarray,
+                     old_class: np.ndarray) -> np.ndarray:
+    """``[max new id + 1]`` views in which most of an instance's visible points land on one 2D segment of the
+    instance's own class (:func:`supporting_views` over the votes on :func:`class_segments` ids of that class).
+
+    Examples
+    --------
+    Instance 1 (class 7) lands on a class-7 segment in view 0 and on a class-5 one in view 1:
+
+    >>> seg7, seg5 = 7 << SEGMENT_CLASS_SHIFT | 4, 5 << SEGMENT_CLASS_SHIFT | 4
+    >>> votes = np.array([[0, 1, seg7, 9, 10], [1, 1, seg5, 8, 10]])
+    >>> confirming_views(votes, np.array([1]), np.array([1]), np.array([0, 7])).tolist()
+    [0, 1]
+    """
+    if len(votes):
+        votes = votes[(votes[:, 2] >> SEGMENT_CLASS_SHIFT) == np.asarray(old_class)[votes[:, 1]]]
+    return supporting_views(votes, old_instance, new_instance)
+
+
 def instance_classes(semantic: np.ndarray, instance: np.ndarray) -> np.ndarray:
     """``[max id + 1]`` majority class of every instance id (0 for ids without points)."""
     instance = np.asarray(instance, np.int64)
@@ -274,6 +317,9 @@ class CleanupRules:
     """Instances confirmed by the 2D thing segments in fewer of the voting views fold like crumbs (step 2; 0 = off)."""
     min_confidence: float = 0.0
     """Instances (after merging) whose points' mean class probability is below this fold like crumbs (0 = off)."""
+    keep_confirmed_views: int = 0
+    """An instance to fold that the 2D segments confirm as its own class in at least this many voting views does
+    not change class: it folds only into its own class, else stays (0 = off; needs :func:`class_segments` ids)."""
 
 
 def clean_instances(xyz: np.ndarray, xyz_world: np.ndarray, semantic: np.ndarray, instance: np.ndarray, *,
@@ -315,8 +361,10 @@ def clean_instances(xyz: np.ndarray, xyz_world: np.ndarray, semantic: np.ndarray
                              "merge": {"views": int(min(max_views, len(frames))), "min_share": float(min_share),
                                        "min_views": int(min_views)} if merge else "off",
                              "crumb_points": int(crumb_points)}
+    keep_views = int(rules.keep_confirmed_views)
     votes = None
-    if (merge and stats["instances_before"] > 1) or (min_support_views > 0 and stats["instances_before"]):
+    if (merge and stats["instances_before"] > 1) or ((min_support_views > 0 or keep_views > 0)
+                                                      and stats["instances_before"]):
         votes = segment_votes(xyz_world, instance, cameras, frames, segments_of, max_views=max_views)
     before = instance
     if merge and stats["instances_before"] > 1:
@@ -361,9 +409,19 @@ def clean_instances(xyz: np.ndarray, xyz_world: np.ndarray, semantic: np.ndarray
         in_crumb[thing] |= unsure[component[thing]]
         # An unsure instance with nothing sure around it (a field that is unsure everywhere) stays.
         stay |= set(np.flatnonzero(unsure).tolist())
+    stats["keep_confirmed_views"] = keep_views
+    stats["confirmed_kept"] = 0
     if in_crumb.any():
+        before_class, before_component = semantic.copy(), component.copy()
         _relabel_fragments(np.asarray(xyz, np.float64), semantic, component, in_crumb, keep, 4.0 * link_radius,
                            crumb_stats, stay_when_isolated=stay)
+        if votes is not None and keep_views > 0:
+            # Confirmed things that folded into another class go back to what they were.
+            confirmed = confirming_views(votes, before, instance, instance_classes(before_class, before))
+            back = in_crumb & (instance > 0) & (confirmed[np.maximum(instance, 0)] >= keep_views) \
+                & (semantic != before_class)
+            semantic[back], component[back], keep[back] = before_class[back], before_component[back], True
+            stats["confirmed_kept"] = count_instances(instance[back])
     stats.update(crumbs_folded=crumb_stats["fragments_relabelled"], crumbs_dropped=crumb_stats["fragments_dropped"],
                  crumb_points_moved=crumb_stats["fragment_points_relabelled"],
                  crumb_points_dropped=crumb_stats["fragment_points_dropped"])
