@@ -157,9 +157,9 @@ def median_depth(weights: Tensor, t_mid: Tensor, deltas: Tensor, level: float = 
     """Distance along each ray where its accumulated opacity first reaches ``level`` (the median depth at 0.5),
     from the rendering weights alone.
 
-    The same crossing as :func:`opacity_crossing` (density constant over each interval), for callers that hold
-    the weights of a render rather than its densities: interval ``k``'s transmittance is ``T_k = 1 - Σ_{i<k} w_i``
-    and its optical depth ``τ_k = ln(T_k / T_{k+1})``. Unlike the expected depth ``Σ w_i t_i``, it does not
+    :func:`opacity_crossing_interval` (density constant over each interval) for callers that hold the weights of
+    a render rather than its densities: interval ``k``'s transmittance is ``T_k = 1 - Σ_{i<k} w_i`` and its optical
+    depth ``τ_k = ln(T_k / T_{k+1})``. Unlike the expected depth ``Σ w_i t_i``, it does not
     move with faint density far behind the surface (the fog of an unbounded scene's background pulls the
     expected depth of a street's road from 3 m to 20 m), and it is where the export's isosurface lies.
 
@@ -186,17 +186,13 @@ def median_depth(weights: Tensor, t_mid: Tensor, deltas: Tensor, level: float = 
     >>> round(d.item(), 3), ok.item()
     (1.5, True)
     """
-    if not 0.0 < level < 1.0:
-        raise ValueError(f"median_depth: level must be in (0, 1), got {level}")
-    opacity = weights.cumsum(-1)
-    reached = opacity[:, -1] >= level
-    k = (opacity < level).sum(-1, keepdim=True).clamp(max=weights.shape[-1] - 1)
+    # Each interval's optical depth from the weights (a saturated one: as opaque as representable), then the
+    # crossing exactly as from densities.
     tiny = torch.finfo(weights.dtype).tiny
-    w_k = weights.gather(-1, k).squeeze(-1)
-    after = 1.0 - opacity.gather(-1, k).squeeze(-1)  # transmittance out of interval k
-    t_k = (after + w_k).clamp_min(tiny)  # and into it
-    tau_k = torch.log(t_k) - torch.log(after.clamp_min(tiny))  # a saturated interval: as opaque as representable
-    fraction = (torch.log(t_k / (1.0 - level)) / tau_k.clamp_min(tiny)).clamp(0.0, 1.0)
+    after = 1.0 - weights.cumsum(-1)  # transmittance out of each interval
+    tau = torch.log((after + weights).clamp_min(tiny)) - torch.log(after.clamp_min(tiny))
+    k, fraction, reached = opacity_crossing_interval(tau, torch.ones_like(tau), level)
+    k = k[:, None]
     delta_k = deltas.gather(-1, k).squeeze(-1)
     distance = t_mid.gather(-1, k).squeeze(-1) - 0.5 * delta_k + fraction * delta_k
     return torch.where(reached, distance, torch.zeros_like(distance)), reached
