@@ -412,10 +412,12 @@ def clean_instances(xyz: np.ndarray, xyz_world: np.ndarray, semantic: np.ndarray
     stats["keep_confirmed_views"] = keep_views
     stats["confirmed_kept"] = 0
     if in_crumb.any():
-        before_class, before_component = semantic.copy(), component.copy()
+        guard = votes is not None and keep_views > 0
+        if guard:
+            before_class, before_component = semantic.copy(), component.copy()
         _relabel_fragments(np.asarray(xyz, np.float64), semantic, component, in_crumb, keep, 4.0 * link_radius,
                            crumb_stats, stay_when_isolated=stay)
-        if votes is not None and keep_views > 0:
+        if guard:
             # Confirmed things that folded into another class go back to what they were.
             confirmed = confirming_views(votes, before, instance, instance_classes(before_class, before))
             back = in_crumb & (instance > 0) & (confirmed[np.maximum(instance, 0)] >= keep_views) \

@@ -132,10 +132,13 @@ class PanopticModel(nn.Module):
                                              progress, generator, perceptual))
 
     def render_chunked(self, origins: Tensor, dirs: Tensor, *, with_labels: bool = True,
-                       chunk_size: int | None = None, progress: bool = False) -> dict[str, Tensor]:
-        """Render any number of rays without gradients; label outputs are probabilities."""
+                       with_median_depth: bool = False, chunk_size: int | None = None,
+                       progress: bool = False) -> dict[str, Tensor]:
+        """Render any number of rays without gradients; label outputs are probabilities; see
+        :func:`render_rays_chunked`."""
         return render_rays_chunked(self.field, self.proposals, origins, dirs, self.cfg.sampling, bounded=self.bounded,
-                                   with_labels=with_labels, chunk_size=chunk_size, progress=progress)
+                                   with_labels=with_labels, with_median_depth=with_median_depth,
+                                   chunk_size=chunk_size, progress=progress)
 
     def panoptic_from_probs(self, sem_probs: Tensor, inst_probs: Tensor | None) -> tuple[Tensor, Tensor, Tensor]:
         """Pixel/point panoptic labels from probabilities (the paper's rule: u* = argmax U; v* = argmax V for things).

@@ -53,7 +53,7 @@ class FrameRender:
     instance: np.ndarray | None  # [H, W] int64
     confidence: np.ndarray | None  # [H, W] float32 probability of the chosen class
     #: [H, W] float32 z-depth where the ray's opacity reaches 0.5 (the median depth: where the export's
-    #: isosurface lies), world units; 0 where it never does. None when not rendered.
+    #: isosurface lies), world units; 0 where it never does. None when not rendered (frames without labels).
     median_depth: np.ndarray | None = None
 
     @property
@@ -126,6 +126,8 @@ def render_frame(model, rays: RayGenerator, i: int, world_scale: float, *, downs
         Normalisation scale (normalised units per world unit) to report depth in world units.
     downscale : int
         Render every ``downscale``-th pixel block (faster previews).
+    with_labels : bool
+        Also the labels, and the median depth that places labelled pixels in 3D (``median_depth``).
     min_segment_fraction : float
         Thing segments under this fraction of the frame's pixels take their surroundings' labels
         (:func:`merge_small_segments`; 0 keeps the raw argmax labels).
@@ -133,14 +135,16 @@ def render_frame(model, rays: RayGenerator, i: int, world_scale: float, *, downs
     was_training = model.training
     model.eval()
     o, d, cos, (h, w) = rays.image_rays(i, downscale)
-    out = model.render_chunked(o, d, with_labels=with_labels, chunk_size=chunk_size, progress=progress)
+    out = model.render_chunked(o, d, with_labels=with_labels, with_median_depth=with_labels, chunk_size=chunk_size,
+                               progress=progress)
     if was_training:
         model.train()
     opacity = out["opacity"]
     # Distance to what the ray sees (normalised by opacity), projected on the optical axis, in world units.
     depth = out["depth"] / opacity.clamp_min(1e-6) * cos / world_scale
-    median = out["median_depth"] * cos / world_scale
-    sem = inst = conf = None
+    sem = inst = conf = median = None
+    if with_labels:
+        median = (out["median_depth"] * cos / world_scale).view(h, w).cpu().numpy().astype(np.float32)
     if with_labels and "semantic" in out:
         c, k, p = model.panoptic_from_probs(out["semantic"], out.get("instance"))
         sem, inst, conf = (x.view(h, w).cpu().numpy() for x in (c, k, p))
@@ -151,5 +155,5 @@ def render_frame(model, rays: RayGenerator, i: int, world_scale: float, *, downs
         depth=torch.where(opacity > 1e-4, depth, torch.zeros_like(depth)).view(h, w).cpu().numpy().astype(np.float32),
         opacity=opacity.view(h, w).cpu().numpy().astype(np.float32),
         semantic=sem, instance=inst, confidence=conf,
-        median_depth=median.view(h, w).cpu().numpy().astype(np.float32),
+        median_depth=median,
     )

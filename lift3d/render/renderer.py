@@ -537,6 +537,7 @@ def render_rays_chunked(
     *,
     bounded: bool,
     with_labels: bool = True,
+    with_median_depth: bool = False,
     chunk_size: int | None = None,
     progress: bool = False,
 ) -> dict[str, Tensor]:
@@ -545,10 +546,10 @@ def render_rays_chunked(
     Returns
     -------
     dict
-        ``rgb`` ``[R, 3]``, ``depth`` ``[R]`` (expected distance ``Σ w_i t_i``), ``median_depth`` ``[R]``
-        (where the opacity reaches 0.5, :func:`lift3d.render.volume.median_depth`; 0 where it never does),
-        ``opacity`` ``[R]`` and with labels ``semantic`` ``[R, U]``
-        and ``instance`` ``[R, V]`` *probabilities* (softmax of the composited logits).
+        ``rgb`` ``[R, 3]``, ``depth`` ``[R]`` (expected distance ``Σ w_i t_i``), ``opacity`` ``[R]``; with labels
+        ``semantic`` ``[R, U]`` and ``instance`` ``[R, V]`` *probabilities* (softmax of the composited logits);
+        with ``with_median_depth`` ``median_depth`` ``[R]`` (where the opacity reaches 0.5,
+        :func:`lift3d.render.volume.median_depth`; 0 where it never does).
     """
     chunk = chunk_size or cfg.chunk_size
     outs: dict[str, list[Tensor]] = {}
@@ -556,8 +557,9 @@ def render_rays_chunked(
     for s in progress_bar(starts, desc="render", disable=not progress, leave=False, unit="chunk"):
         r = render_rays(field, proposals, origins[s:s + chunk], dirs[s:s + chunk], cfg,
                         RenderOptions(training=False, with_labels=with_labels), bounded=bounded)
-        median, _ = median_depth(r.weights, r.t_mid, r.deltas)
-        parts = {"rgb": r.rgb, "depth": r.depth, "median_depth": median, "opacity": r.opacity}
+        parts = {"rgb": r.rgb, "depth": r.depth, "opacity": r.opacity}
+        if with_median_depth:
+            parts["median_depth"] = median_depth(r.weights, r.t_mid, r.deltas)[0]
         if r.semantic is not None:
             parts["semantic"] = torch.softmax(r.semantic, -1)
         if r.instance is not None:
