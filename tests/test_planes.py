@@ -9,9 +9,9 @@ from lift3d.data.scene import load_scene
 from lift3d.data.stereo import SparsePoints, write_sparse_points
 from lift3d.model.config import ImageDepthConfig
 from lift3d.data.cameras import Cameras
-from lift3d.sfm.planes import (FitSettings, NewWalls, add_walls, ceiling_height, ceiling_points, corner_cutters,
-                               correct_walls, fit_planes, floor_boundary_points, floor_line, floor_line_walls,
-                               point_classes)
+from lift3d.sfm.planes import (FitSettings, NewWalls, add_walls, ceiling_boundary_points, ceiling_height, ceiling_points,
+                               corner_cutters, correct_walls, fit_planes, floor_boundary_points, floor_line,
+                               floor_line_walls, point_classes, sloped_ceiling)
 from lift3d.synth import SynthOptions, make_scene
 from lift3d.train.image_depth import flat_info, image_depth_targets
 
@@ -78,9 +78,10 @@ def test_a_sparsely_seen_wall_is_found_among_horizontal_clutter_at_its_points_he
                    for h in (0.8, 1.4, 2.0))
 
 
-def _labelled_box_views(size=96, f=80.0, pitch_deg=10.0):
+def _labelled_box_views(size=96, f=80.0, pitch_deg=10.0, ceiling=None):
     """Four views from the middle of a 6 × 4 × 2.5 m box room (floor z = 0, walls x = ±3, y = ±2), looking
-    along ±x and ±y and ``pitch_deg`` down, with exact labels (wall 1, floor 2, ceiling 3) from ray casting."""
+    along ±x and ±y and ``pitch_deg`` down, with exact labels (wall 1, floor 2, ceiling 3) from ray casting.
+    ``ceiling = (normal, offset)``: a tilted ceiling ``normal · x + offset = 0`` instead of the level one."""
     c2ws, labels = [], {}
     pitch = np.radians(pitch_deg)
     for k, yaw in enumerate(np.radians([0, 90, 180, 270])):
@@ -93,7 +94,7 @@ def _labelled_box_views(size=96, f=80.0, pitch_deg=10.0):
         c2ws.append(c2w)
     cams = Cameras(np.array(c2ws), fx=f, fy=f, cx=size / 2, cy=size / 2, width=size, height=size)
     r, c = np.mgrid[0:size, 0:size]
-    faces = [(0, 3.0, 1), (0, -3.0, 1), (1, 2.0, 1), (1, -2.0, 1), (2, 0.0, 2), (2, 2.5, 3)]
+    faces = [(0, 3.0, 1), (0, -3.0, 1), (1, 2.0, 1), (1, -2.0, 1), (2, 0.0, 2)] + ([(2, 2.5, 3)] if ceiling is None else [])
     for k in range(4):
         o, d = cams.rays(k, c.ravel(), r.ravel())
         best, cls = np.full(len(d), np.inf), np.zeros(len(d), np.int64)
@@ -102,6 +103,11 @@ def _labelled_box_views(size=96, f=80.0, pitch_deg=10.0):
                 t = (value - o[:, axis]) / d[:, axis]
             hit = np.isfinite(t) & (t > 1e-6) & (t < best)
             best[hit], cls[hit] = t[hit], label
+        if ceiling is not None:
+            with np.errstate(divide="ignore", invalid="ignore"):
+                t = -(o @ ceiling[0] + ceiling[1]) / (d @ ceiling[0])
+            hit = np.isfinite(t) & (t > 1e-6) & (t < best)
+            best[hit], cls[hit] = t[hit], 3
         labels[k] = cls.reshape(size, size)
     return cams, labels
 
@@ -365,6 +371,36 @@ def test_a_plain_ceiling_gets_its_plane_from_where_the_labels_put_it_on_the_wall
         z = (o[:, 2] + t_wall * d[:, 2]).reshape(96, 96)
         windows[k] = np.where((lab == WALL) & (z > 1.2) | (lab == WINDOW), WINDOW, lab)
     assert ceiling_height(cams, range(4), windows, planes, UP, 0.0, [WINDOW], threshold=0.1, min_points=8)[0] is None
+
+
+def test_a_sloped_ceiling_gets_a_tilted_plane_through_the_lines_where_it_meets_the_walls():
+    # An attic: the ceiling falls from 2.8 m at x = -3 to 2.2 m at x = 3 (5.7°). It meets the walls at different
+    # heights, so there is no level height; all those lines lie in its plane.
+    xyz, cls, floor = _box_room_walls()
+    planes = fit_planes(np.r_[xyz, floor], np.r_[cls, np.full(3000, FLOOR)], [WALL, FLOOR, CEILING], threshold=0.1,
+                        min_points=8, up=UP, margin=0.3)
+    normal = np.array([0.1, 0.0, 1.0]) / np.linalg.norm([0.1, 0.0, 1.0])
+    offset = -2.5 * normal[2]
+    cams, labels = _labelled_box_views(pitch_deg=-15.0, ceiling=(normal, offset))
+    top, count = ceiling_height(cams, range(4), labels, planes, UP, 0.0, [CEILING], threshold=0.1, min_points=8)
+    assert top is None and count > 50
+    points, eyes = ceiling_boundary_points(cams, range(4), labels, planes, UP, [CEILING])
+    assert len(points) == count and len(eyes) == 4
+    found = sloped_ceiling(points, cams.centers, UP, 0.1, 8)
+    assert found is not None
+    n, d = found
+    assert np.degrees(np.arccos(np.clip(n @ normal, -1, 1))) < 1.0 and abs(d - offset) < 0.05
+    # its pixels' rays meet it where the ceiling is
+    pts, _, _ = ceiling_points(cams, range(4), labels, n, d, [CEILING], stride=4)
+    assert len(pts) > 20 and np.abs(pts @ normal + offset).max() < 0.05
+    # A level ceiling's boundaries give no tilted plane (the level height holds them), nor do the top edges of
+    # one wall alone (every plane through that line fits them), nor a plane below a camera.
+    level_cams, level = _labelled_box_views(pitch_deg=-15.0)
+    flat, _ = ceiling_boundary_points(level_cams, range(4), level, planes, UP, [CEILING])
+    assert sloped_ceiling(flat, level_cams.centers, UP, 0.1, 8) is None
+    one_wall = points[np.abs(points[:, 0] - 3.0) < 0.05]
+    assert len(one_wall) >= 8 and sloped_ceiling(one_wall, cams.centers, UP, 0.1, 8) is None
+    assert sloped_ceiling(points, np.r_[cams.centers, [[0.0, 0.0, 2.7]]], UP, 0.1, 8) is None
 
 
 def test_a_window_whose_sill_is_above_the_eyes_is_no_ceiling_because_its_wall_goes_on_above_it():

@@ -249,11 +249,60 @@ def floor_line(cameras, frames, labels: dict[int, np.ndarray], normal: np.ndarra
     return FloorLine(*(np.concatenate(a) for a in zip(*parts)))
 
 
+def ceiling_boundary_points(cameras, frames, labels: dict[int, np.ndarray], planes: "StuffPlanes", normal: np.ndarray,
+                            ceiling_classes, min_rows: int = 2) -> tuple[np.ndarray, np.ndarray]:
+    """Where the 2D labels put a ceiling class directly above a wall whose plane is known: the ray through that
+    boundary meets the wall's plane where the ceiling meets the wall.
+
+    Parameters
+    ----------
+    planes : StuffPlanes
+        The planes found so far; walls are those within 10° of vertical.
+    normal : np.ndarray
+        The floor's normal (up).
+    ceiling_classes : iterable of int
+        Classes that may be the ceiling (stuff that no floor or wall plane holds).
+
+    Returns
+    -------
+    points : np.ndarray
+        ``[N, 3]`` the boundary points (world units).
+    eyes : np.ndarray
+        ``[F, 3]`` the centres of the cameras that saw any of them.
+    """
+    normal = np.asarray(normal, np.float64)
+    vertical = planes.vertical(normal)
+    ceiling = [int(c) for c in ceiling_classes]
+    walls = sorted(set().union(*[c for c, v in zip(planes.classes, vertical) if v]) - set(ceiling)) \
+        if vertical.any() else []
+    points, eyes = [np.zeros((0, 3))], [np.zeros((0, 3))]
+    if not walls or not ceiling:
+        return points[0], eyes[0]
+    for i in frames:
+        i = int(i)
+        sem = labels[i]
+        r, c = label_boundary(sem, ceiling, walls, min_rows, same="lower")
+        # Nothing of a wall lies above a ceiling in the image; above a window or a picture its wall goes on. A
+        # window's sill is no ceiling, even above the eyes (a test room's made a level plane at 1.67 m of 3.2).
+        wall_above = np.maximum.accumulate(np.isin(sem, walls), axis=0)
+        keep = ~wall_above[r, c]
+        r, c = r[keep], c[keep]
+        if not len(r):
+            continue
+        o, d = cameras.rays(i, c.astype(np.float64), r + 0.5)
+        t, k = planes.first_hit(o, d)
+        ok = (k >= 0) & planes.holds(k, sem[r + 1, c].astype(np.int64))
+        ok[ok] &= vertical[k[ok]]
+        points.append(o[ok] + t[ok, None] * d[ok])
+        eyes.append(cameras.c2w_opencv[i][:3, 3][None])
+    return np.concatenate(points), np.concatenate(eyes)
+
+
 def ceiling_height(cameras, frames, labels: dict[int, np.ndarray], planes: "StuffPlanes", normal: np.ndarray,
                    offset: float, ceiling_classes, threshold: float, min_points: int, min_rows: int = 2
                    ) -> tuple[float | None, int]:
     """The ceiling's height above the floor, from where the 2D labels put a ceiling class directly above a wall
-    whose plane is known: the ray through that boundary meets the wall's plane at the ceiling.
+    whose plane is known (:func:`ceiling_boundary_points`).
 
     Parameters
     ----------
@@ -293,37 +342,101 @@ def ceiling_height(cameras, frames, labels: dict[int, np.ndarray], planes: "Stuf
     (2.5, 64)
     """
     normal = np.asarray(normal, np.float64)
-    vertical = planes.vertical(normal)
-    ceiling = [int(c) for c in ceiling_classes]
-    walls = sorted(set().union(*[c for c, v in zip(planes.classes, vertical) if v]) - set(ceiling)) \
-        if vertical.any() else []
-    if not walls or not ceiling:
-        return None, 0
-    heights, eyes = [], []
-    for i in frames:
-        i = int(i)
-        sem = labels[i]
-        r, c = label_boundary(sem, ceiling, walls, min_rows, same="lower")
-        # Nothing of a wall lies above a ceiling in the image; above a window or a picture its wall goes on. A
-        # window's sill is no ceiling, even above the eyes (a test room's made a level plane at 1.67 m of 3.2).
-        wall_above = np.maximum.accumulate(np.isin(sem, walls), axis=0)
-        keep = ~wall_above[r, c]
-        r, c = r[keep], c[keep]
-        if not len(r):
-            continue
-        o, d = cameras.rays(i, c.astype(np.float64), r + 0.5)
-        t, k = planes.first_hit(o, d)
-        ok = (k >= 0) & planes.holds(k, sem[r + 1, c].astype(np.int64))
-        ok[ok] &= vertical[k[ok]]
-        heights.append((o[ok] + t[ok, None] * d[ok]) @ normal + offset)
-        eyes.append(float(cameras.c2w_opencv[i][:3, 3] @ normal + offset))
-    h = np.concatenate(heights) if heights else np.zeros(0)
+    points, eyes = ceiling_boundary_points(cameras, frames, labels, planes, normal, ceiling_classes, min_rows)
+    return level_ceiling_height(points, eyes, normal, offset, threshold, min_points), int(len(points))
+
+
+def level_ceiling_height(points: np.ndarray, eyes: np.ndarray, normal: np.ndarray, offset: float, threshold: float,
+                         min_points: int) -> float | None:
+    """The median height of ceiling boundary points ``[N, 3]`` above the floor ``normal · x + offset = 0``; None
+    when there are fewer than ``min_points``, when their heights' median absolute deviation exceeds
+    ``threshold``, or when it is not above the median of the ``eyes`` ``[F, 3]`` (a ceiling is above the
+    cameras)."""
+    h = np.asarray(points, np.float64) @ normal + offset
     if len(h) < min_points:
-        return None, int(len(h))
+        return None
     height = float(np.median(h))
-    if np.median(np.abs(h - height)) > threshold or height <= np.median(eyes):
-        return None, int(len(h))
-    return height, int(len(h))
+    if np.median(np.abs(h - height)) > threshold or height <= np.median(np.asarray(eyes) @ normal + offset):
+        return None
+    return height
+
+
+def sloped_ceiling(points: np.ndarray, eyes: np.ndarray, normal: np.ndarray, threshold: float, min_points: int, *,
+                   min_tilt_deg: float = 3.0, max_tilt_deg: float = 45.0, min_share: float = 0.6,
+                   iterations: int = 500, seed: int = 0) -> tuple[np.ndarray, float] | None:
+    """One tilted plane through the ceiling-on-wall boundary points (:func:`ceiling_boundary_points`), when a
+    level one does not hold them: the ceiling of an attic or a lean-to meets its walls along lines at different
+    heights, and all of those lines lie in the ceiling's plane.
+
+    The plane is RANSAC's through three points, refitted to its inliers by least squares. It is returned only
+    when all of these hold: at least ``min_points`` inliers and ``min_share`` of the boundary points; their median
+    distance to it at most ``threshold``; they span the plane in two directions (points along a single wall's top
+    edge fit every plane through that line); it tilts between ``min_tilt_deg`` and ``max_tilt_deg`` from level;
+    and every eye in ``eyes`` lies below it (a ceiling is above the cameras). A barrel vault or two roof pitches
+    fit no single plane so well, and get none.
+
+    Parameters
+    ----------
+    points : np.ndarray
+        ``[N, 3]`` boundary points.
+    eyes : np.ndarray
+        ``[F, 3]`` camera centres.
+    normal : np.ndarray
+        The floor's normal (up).
+    threshold : float
+        Inlier distance (world units).
+    min_points : int
+        Fewest inliers.
+
+    Returns
+    -------
+    (normal, offset) or None
+        The plane ``normal · x + offset = 0``, its normal turned up.
+
+    Examples
+    --------
+    The top edges of four walls of a 6 × 4 m room whose ceiling falls from 3.4 m (x = -3) to 2.4 m (x = 3):
+
+    >>> t = np.linspace(0.0, 1.0, 30)
+    >>> height = lambda x: 2.9 - x / 6.0
+    >>> sides = [np.c_[-3 + 6 * t, np.full(30, y), height(-3 + 6 * t)] for y in (-2.0, 2.0)]
+    >>> ends = [np.c_[np.full(30, x), -2 + 4 * t, np.full(30, height(x))] for x in (-3.0, 3.0)]
+    >>> n, d = sloped_ceiling(np.concatenate(sides + ends), np.array([[0, 0, 1.5]]), np.array([0, 0, 1.0]), 0.02, 20)
+    >>> [round(float(v), 3) + 0.0 for v in n], round(d, 2)
+    ([0.164, 0.0, 0.986], -2.86)
+    >>> sloped_ceiling(np.concatenate(ends[:1]), np.array([[0, 0, 1.5]]), np.array([0, 0, 1.0]), 0.02, 20) is None
+    True
+    """
+    x = np.asarray(points, np.float64)
+    up = np.asarray(normal, np.float64) / np.linalg.norm(normal)
+    if len(x) < max(min_points, 3):
+        return None
+    rng = np.random.default_rng(seed)
+    idx = rng.integers(0, len(x), size=(iterations, 3))
+    n = np.cross(x[idx[:, 1]] - x[idx[:, 0]], x[idx[:, 2]] - x[idx[:, 0]])
+    norm = np.linalg.norm(n, axis=1)
+    ok = norm > 1e-9
+    if not ok.any():
+        return None
+    n, a = n[ok] / norm[ok, None], x[idx[ok, 0]]
+    d = -np.einsum("ij,ij->i", n, a)
+    counts = (np.abs(x @ n.T + d) < threshold).sum(0)
+    k = int(np.argmax(counts))
+    inl = np.abs(x @ n[k] + d[k]) < threshold
+    c = x[inl].mean(0)
+    _, sv, vt = np.linalg.svd(x[inl] - c, full_matrices=False)
+    best, offset = vt[2], float(-vt[2] @ c)
+    if best @ up < 0:
+        best, offset = -best, -offset
+    inl = np.abs(x @ best + offset) < threshold
+    tilt = np.degrees(np.arccos(np.clip(best @ up, -1.0, 1.0)))
+    # the inliers' spread across their main direction: a line of points leaves the plane's turn about it free
+    spread = sv[1] / np.sqrt(max(int(inl.sum()), 1))
+    if (inl.sum() < max(min_points, min_share * len(x)) or np.median(np.abs(x[inl] @ best + offset)) > threshold
+            or spread < threshold or not min_tilt_deg <= tilt <= max_tilt_deg
+            or np.any(np.asarray(eyes, np.float64) @ best + offset >= 0)):
+        return None
+    return best, offset
 
 
 def ceiling_points(cameras, frames, labels: dict[int, np.ndarray], normal: np.ndarray, offset: float,

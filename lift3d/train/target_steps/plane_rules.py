@@ -15,10 +15,10 @@ import numpy as np
 
 from lift3d.data.scene import Scene
 from lift3d.data.stereo import DenseDepth
-from lift3d.sfm.planes import (FitSettings, NewWalls, StuffPlanes, add_walls, ceiling_height, ceiling_points,
+from lift3d.sfm.planes import (FitSettings, NewWalls, StuffPlanes, add_walls, ceiling_boundary_points, ceiling_points,
                                contradicted, corner_cutters, correct_walls, fit_planes, floor_boundary_points,
-                               floor_line, floor_line_walls, most_walls_hold, point_classes, square_walls,
-                               wall_classes, wall_directions)
+                               floor_line, floor_line_walls, level_ceiling_height, most_walls_hold, point_classes,
+                               sloped_ceiling, square_walls, wall_classes, wall_directions)
 from lift3d.train.target_steps.state import TargetContext, TargetState, TargetStep, setting
 
 
@@ -278,17 +278,23 @@ class SquareWalls(TargetStep):
 
 @dataclass
 class CeilingBoundary(TargetStep):
-    """A level ceiling plane where the labels' ceiling-on-wall boundaries meet the walls' planes at one height above
-    the cameras, over the points where the ceiling pixels' rays meet it (:func:`lift3d.sfm.planes.ceiling_height`);
-    with ``extend``, first every level plane above the cameras that stereo found for a ceiling class reaches over
-    every pixel of that class. Walls from stereo alone are enough: this does not need the floor line. Records
-    ``ceiling_boundary_points``, ``ceiling_height``, ``ceiling_contradicted`` and ``ceiling_extended``."""
+    """A ceiling plane where the labels' ceiling-on-wall boundaries meet the walls' planes
+    (:func:`lift3d.sfm.planes.ceiling_boundary_points`), over the points where the ceiling pixels' rays meet it: a
+    level plane when the boundary points agree on one height above the cameras
+    (:func:`lift3d.sfm.planes.level_ceiling_height`); with ``slope``, else one tilted plane through them when it
+    holds them (:func:`lift3d.sfm.planes.sloped_ceiling`: an attic's ceiling meets its walls at different
+    heights). With ``extend``, first every level plane above the cameras that stereo found for a ceiling class
+    reaches over every pixel of that class. Walls from stereo alone are enough: this does not need the floor line.
+    Records ``ceiling_boundary_points``, ``ceiling_height``, ``ceiling_slope_degrees`` (of a tilted ceiling),
+    ``ceiling_contradicted`` and ``ceiling_extended``."""
 
     name = "ceiling-boundary"
     needs = frozenset({"room"})
     enabled: bool = setting("plane_ceiling_boundary")
     extend: bool = setting("plane_ceiling_extend")
     """Grow textured ceilings over their class's pixels first."""
+    slope: bool = setting("plane_ceiling_slope")
+    """A tilted plane where the boundary points do not agree on one height."""
     crossing_share: float = setting("plane_ceiling_crossing_share")
     """Most sight lines crossing a ceiling plane, as a share of those ending on it."""
     wall_share: float = setting("plane_ceiling_wall_share")
@@ -310,18 +316,25 @@ class CeilingBoundary(TargetStep):
             vertical = planes.vertical(n)
         for c in [c for c in stuff if not any(c in k for k, v in zip(planes.classes, vertical) if not v)
                   and not most_walls_hold(planes, vertical, c, self.wall_share)]:
-            top, count = ceiling_height(context.scene.cameras, context.frames, context.labels, planes, n, d, [c],
-                                        threshold=threshold, min_points=state.min_points,
-                                        min_rows=context.plane.boundary_rows)
-            found["ceiling_boundary_points"] += count
-            if top is None:
+            points, eyes = ceiling_boundary_points(context.scene.cameras, context.frames, context.labels, planes, n,
+                                                   [c], min_rows=context.plane.boundary_rows)
+            found["ceiling_boundary_points"] += len(points)
+            top = level_ceiling_height(points, eyes, n, d, threshold, state.min_points)
+            plane = None if top is None else (n, d - top)
+            if plane is None and self.slope:
+                cams = context.scene.cameras.centers[np.asarray(context.frames, np.int64)]
+                plane = sloped_ceiling(points, cams, n, threshold, state.min_points)
+            if plane is None:
                 continue
-            grown = self.level_plane_over_pixels(planes, (n, d - top), c, state, context)
+            grown = self.plane_over_pixels(planes, plane, c, state, context)
             if grown is None:
                 found["ceiling_contradicted"] += 1
                 continue
             planes = grown
-            found["ceiling_height"] = round(top, 4)
+            if top is not None:
+                found["ceiling_height"] = round(top, 4)
+            else:
+                found["ceiling_slope_degrees"] = round(float(np.degrees(np.arccos(np.clip(plane[0] @ n, -1, 1)))), 2)
         state.planes = planes
         return found
 
@@ -346,14 +359,14 @@ class CeilingBoundary(TargetStep):
             for c in sorted(int(c) for c in planes.classes[k] if c in context.scene.stuff_ids):
                 if most_walls_hold(planes, vertical, c, self.wall_share):
                     continue
-                grown = self.level_plane_over_pixels(planes, (planes.normal[k], float(planes.offset[k])), c, state,
+                grown = self.plane_over_pixels(planes, (planes.normal[k], float(planes.offset[k])), c, state,
                                                      context)
                 if grown is not None:
                     count += len(grown) > len(planes)
                     planes = grown
         return planes, count
 
-    def level_plane_over_pixels(self, planes: StuffPlanes, plane: tuple[np.ndarray, float], class_id: int,
+    def plane_over_pixels(self, planes: StuffPlanes, plane: tuple[np.ndarray, float], class_id: int,
                                 state: TargetState, context: TargetContext) -> StuffPlanes | None:
         """The planes and one more, ``plane = (normal, offset)``, over the points where the rays of the pixels the
         labels call ``class_id`` meet it (:func:`lift3d.sfm.planes.ceiling_points`), holding that class; None when
