@@ -235,9 +235,10 @@ class ImageDepthConfig:
     """``planes``: a level plane above the cameras that stereo found for a ceiling class reaches over every pixel
     the 2D labels give that class (stereo matches a textured ceiling in a few spots only)."""
     plane_ceiling_slope: bool = True
-    """``planes``, with ``plane_ceiling_boundary``: where the ceiling-on-wall boundary points do not agree on one
-    height, one tilted plane through them (an attic's or a lean-to's ceiling) when it holds most of them, spans
-    them in two directions, tilts 3–45° and lies above every camera (:func:`lift3d.sfm.planes.sloped_ceiling`)."""
+    """``planes``, with ``plane_ceiling_boundary``: one tilted plane through the ceiling-on-wall boundary points
+    (an attic's or a lean-to's ceiling) when it holds most of them, spans them in two directions, tilts 3–45°, lies
+    above every camera (:func:`lift3d.sfm.planes.sloped_ceiling`) and holds 1.1 × as many of them as a level
+    height does (or there is none)."""
     plane_ceiling_crossing_share: float = 1.0
     """``planes``, with ``plane_ceiling_boundary``: a level plane over a ceiling class's pixels is not added where
     more sight lines cross it than this share of those that end on it (a window's sill above the eyes: 30 × as

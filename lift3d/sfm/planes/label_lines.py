@@ -439,6 +439,73 @@ def sloped_ceiling(points: np.ndarray, eyes: np.ndarray, normal: np.ndarray, thr
     return best, offset
 
 
+#: A tilted ceiling plane replaces a level height when it holds this many times as many boundary points.
+SLOPE_GAIN = 1.1
+
+
+def ceiling_plane(points: np.ndarray, eyes: np.ndarray, cameras: np.ndarray, normal: np.ndarray, offset: float,
+                  threshold: float, min_points: int, *, slope: bool = True
+                  ) -> tuple[tuple[np.ndarray, float] | None, float | None]:
+    """The ceiling's plane from its boundary points with the walls (:func:`ceiling_boundary_points`).
+
+    The level height (:func:`level_ceiling_height`) unless, with ``slope``, a tilted plane qualifies
+    (:func:`sloped_ceiling`) and there is no level height or the tilted plane holds :data:`SLOPE_GAIN` times as
+    many of the points within ``threshold``: a sloped ceiling's boundary points can agree on one height when most
+    of them lie along its low wall (tuning attic 101: 744 of 1080 within the threshold of 2.43 m; its tilted
+    plane held 962).
+
+    Parameters
+    ----------
+    points, eyes : np.ndarray
+        ``[N, 3]`` boundary points and ``[F, 3]`` the centres of the cameras that saw them.
+    cameras : np.ndarray
+        ``[C, 3]`` every training camera's centre (a ceiling is above all of them).
+    normal, offset : np.ndarray, float
+        The floor plane (``normal`` up).
+    threshold : float
+        Plane threshold (world units).
+    min_points : int
+        Fewest boundary points.
+
+    Returns
+    -------
+    plane : (np.ndarray, float) or None
+        ``(normal, offset)`` of the ceiling plane, normal up.
+    height : float or None
+        Its height above the floor when it is level.
+
+    Examples
+    --------
+    Most boundary points along the low wall (2.2 m at x = 3), fewer up the sloped side walls: the level height
+    holds the low wall's, the tilted plane all of them.
+
+    >>> t = np.linspace(0.0, 1.0, 40)
+    >>> low = np.c_[np.full(120, 3.0), np.linspace(-2, 2, 120), np.full(120, 2.2)]
+    >>> sides = [np.c_[-3 + 6 * t, np.full(40, y), 2.5 - 0.1 * (-3 + 6 * t)] for y in (-2.0, 2.0)]
+    >>> up, eye = np.array([0, 0, 1.0]), np.array([[0, 0, 1.5]])
+    >>> plane, height = ceiling_plane(np.concatenate([low] + sides), eye, eye, up, 0.0, 0.05, 20)
+    >>> height is None, round(float(np.degrees(np.arccos(plane[0] @ up))), 1)
+    (True, 5.7)
+    >>> ceiling_plane(np.concatenate([low] + sides), eye, eye, up, 0.0, 0.05, 20, slope=False)[1]
+    2.2
+    """
+    top = level_ceiling_height(points, eyes, normal, offset, threshold, min_points)
+    plane = None if top is None else (np.asarray(normal, np.float64), offset - top)
+    if not slope:
+        return plane, top
+    tilted = sloped_ceiling(points, cameras, normal, threshold, min_points)
+    if tilted is None:
+        return plane, top
+    if plane is None or _held(points, tilted, threshold) > SLOPE_GAIN * _held(points, plane, threshold):
+        return tilted, None
+    return plane, top
+
+
+def _held(points: np.ndarray, plane: tuple[np.ndarray, float], threshold: float) -> int:
+    """How many of ``points`` lie within ``threshold`` of ``plane = (normal, offset)``."""
+    return int((np.abs(np.asarray(points, np.float64) @ plane[0] + plane[1]) < threshold).sum())
+
+
 def ceiling_points(cameras, frames, labels: dict[int, np.ndarray], normal: np.ndarray, offset: float,
                    ceiling_classes, stride: int = 4) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Where the rays of the pixels the labels call ceiling (every ``stride``-th row and column) meet the ceiling

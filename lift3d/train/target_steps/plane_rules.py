@@ -15,10 +15,10 @@ import numpy as np
 
 from lift3d.data.scene import Scene
 from lift3d.data.stereo import DenseDepth
-from lift3d.sfm.planes import (FitSettings, NewWalls, StuffPlanes, add_walls, ceiling_boundary_points, ceiling_points,
-                               contradicted, corner_cutters, correct_walls, fit_planes, floor_boundary_points,
-                               floor_line, floor_line_walls, level_ceiling_height, most_walls_hold, point_classes,
-                               sloped_ceiling, square_walls, wall_classes, wall_directions)
+from lift3d.sfm.planes import (FitSettings, NewWalls, StuffPlanes, add_walls, ceiling_boundary_points, ceiling_plane,
+                               ceiling_points, contradicted, corner_cutters, correct_walls, fit_planes,
+                               floor_boundary_points, floor_line, floor_line_walls, most_walls_hold, point_classes,
+                               square_walls, wall_classes, wall_directions)
 from lift3d.train.target_steps.state import TargetContext, TargetState, TargetStep, setting
 
 
@@ -281,8 +281,8 @@ class CeilingBoundary(TargetStep):
     """A ceiling plane where the labels' ceiling-on-wall boundaries meet the walls' planes
     (:func:`lift3d.sfm.planes.ceiling_boundary_points`), over the points where the ceiling pixels' rays meet it: a
     level plane when the boundary points agree on one height above the cameras
-    (:func:`lift3d.sfm.planes.level_ceiling_height`); with ``slope``, else one tilted plane through them when it
-    holds them (:func:`lift3d.sfm.planes.sloped_ceiling`: an attic's ceiling meets its walls at different
+    (:func:`lift3d.sfm.planes.level_ceiling_height`); with ``slope``, one tilted plane through them instead when it
+    qualifies (:func:`lift3d.sfm.planes.ceiling_plane`: an attic's ceiling meets its walls at different
     heights). With ``extend``, first every level plane above the cameras that stereo found for a ceiling class
     reaches over every pixel of that class. Walls from stereo alone are enough: this does not need the floor line.
     Records ``ceiling_boundary_points``, ``ceiling_height``, ``ceiling_slope_degrees`` (of a tilted ceiling),
@@ -319,11 +319,8 @@ class CeilingBoundary(TargetStep):
             points, eyes = ceiling_boundary_points(context.scene.cameras, context.frames, context.labels, planes, n,
                                                    [c], min_rows=context.plane.boundary_rows)
             found["ceiling_boundary_points"] += len(points)
-            top = level_ceiling_height(points, eyes, n, d, threshold, state.min_points)
-            plane = None if top is None else (n, d - top)
-            if plane is None and self.slope:
-                cams = context.scene.cameras.centers[np.asarray(context.frames, np.int64)]
-                plane = sloped_ceiling(points, cams, n, threshold, state.min_points)
+            cams = context.scene.cameras.centers[np.asarray(context.frames, np.int64)]
+            plane, top = ceiling_plane(points, eyes, cams, n, d, threshold, state.min_points, slope=self.slope)
             if plane is None:
                 continue
             grown = self.plane_over_pixels(planes, plane, c, state, context)
