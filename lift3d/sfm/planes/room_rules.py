@@ -425,6 +425,36 @@ def wall_classes(planes: StuffPlanes, floor: int, up: np.ndarray, stuff) -> list
     return [int(c) for c in stuff if sum(c in w for w in walls) >= (2 if c in planes.classes[floor] else 1)]
 
 
+def floor_line_classes(planes: StuffPlanes, floor: int, up: np.ndarray, stuff) -> tuple[list[int], list[int]]:
+    """``(floors, walls)``: the classes below and above a floor line (:func:`floor_boundary_points`). The walls are
+    every stuff class the floor plane ``floor`` does not hold (a plain wall may have no plane yet: finding it is
+    what the floor line is for), and also a class it holds that stands on the floor all the same
+    (:func:`wall_classes`: two or more walls hold it). Without that, wall-labelled points at the walls' feet that
+    made the floor plane hold the wall class left the floor line with no wall at all (tuning hexagon 102: no
+    floor-line point, three of its six walls without a plane and the field's walls on the scene box).
+
+    Examples
+    --------
+    The second room of :func:`wall_classes`, whose floor plane holds the wall class (1) too:
+
+    >>> from lift3d.sfm.planes import fit_planes
+    >>> rng = np.random.default_rng
+    >>> floor = np.c_[rng(0).uniform(-2, 2, (200, 2)), np.zeros(200)]
+    >>> wall = np.c_[np.full(60, 2.0), rng(1).uniform([-2, 0], [2, 2.5], (60, 2))]
+    >>> wall2 = np.c_[rng(2).uniform(-2, 2, 60), np.full(60, 2.0), rng(3).uniform(0, 2.5, 60)]
+    >>> foot = np.c_[np.r_[np.full(40, 2.0), np.linspace(-2, 2, 40)], np.r_[np.linspace(-2, 2, 40), np.full(40, 2.0)],
+    ...              np.zeros(80)]
+    >>> planes = fit_planes(np.r_[floor, wall, wall2, foot], np.r_[np.full(200, 2), np.full(200, 1)], [1, 2, 3],
+    ...                     threshold=0.05, min_points=8, up=np.array([0, 0, 1.0]))
+    >>> f = int(np.argmax(np.abs(planes.normal[:, 2])))
+    >>> sorted(planes.classes[f]), floor_line_classes(planes, f, np.array([0, 0, 1.0]), [1, 2, 3])
+    ([1, 2], ([2], [1, 3]))
+    """
+    on_floor = {int(c) for c in planes.classes[floor]}
+    standing = set(wall_classes(planes, floor, up, stuff)) & on_floor
+    return sorted(on_floor - standing), [int(c) for c in stuff if c not in on_floor or c in standing]
+
+
 def most_walls_hold(planes: StuffPlanes, vertical: np.ndarray, class_id: int, share: float = 0.5) -> bool:
     """Whether at least ``share`` of the vertical planes (walls, ``vertical``: ``[P] bool``) hold ``class_id``: then
     it is a wall's class, not a ceiling's (a few walls can hold the ceiling class from the points along their top

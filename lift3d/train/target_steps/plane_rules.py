@@ -17,7 +17,7 @@ from lift3d.data.scene import Scene
 from lift3d.data.stereo import DenseDepth
 from lift3d.sfm.planes import (FitSettings, NewWalls, StuffPlanes, add_walls, ceiling_boundary_points, ceiling_plane,
                                ceiling_points, contradicted, corner_cutters, correct_walls, fit_planes,
-                               floor_boundary_points, floor_line, floor_line_walls, most_walls_hold, point_classes,
+                               floor_boundary_points, floor_line, floor_line_classes, floor_line_walls, most_walls_hold, point_classes,
                                square_walls, wall_classes, wall_directions)
 from lift3d.train.target_steps.state import TargetContext, TargetState, TargetStep, setting
 
@@ -145,10 +145,10 @@ class FloorBoundary(TargetStep):
         if not state.has_planes() or state.floor is None:
             return {}
         planes, (f, n, d) = state.planes, state.floor
-        walls = [c for c in context.scene.stuff_ids if c not in planes.classes[f]]
+        floors, walls = floor_line_classes(planes, f, n, context.scene.stuff_ids)
         threshold = context.threshold
         foot, foot_cls, foot_cam = floor_boundary_points(
-            context.scene.cameras, context.frames, context.labels, n, d, planes.classes[f], walls,
+            context.scene.cameras, context.frames, context.labels, n, d, floors, walls,
             step=self.step * threshold, max_height=state.height(context), tolerance=self.tolerance * threshold,
             min_rows=context.plane.boundary_rows)
         if len(foot):
