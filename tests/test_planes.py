@@ -9,9 +9,9 @@ from lift3d.data.scene import load_scene
 from lift3d.data.stereo import SparsePoints, write_sparse_points
 from lift3d.model.config import ImageDepthConfig
 from lift3d.data.cameras import Cameras
-from lift3d.sfm.planes import (FitSettings, NewWalls, add_walls, ceiling_boundary_points, ceiling_height, ceiling_points,
-                               corner_cutters, correct_walls, fit_planes, floor_boundary_points, floor_line,
-                               floor_line_walls, point_classes, sloped_ceiling)
+from lift3d.sfm.planes import (FitSettings, NewWalls, add_walls, ceiling_boundary_points, ceiling_height,
+                               ceiling_points, corner_cutters, correct_walls, fit_planes, floor_boundary_points,
+                               floor_line, floor_line_walls, point_classes, sloped_ceiling)
 from lift3d.synth import SynthOptions, make_scene
 from lift3d.train.image_depth import flat_info, image_depth_targets
 
@@ -94,7 +94,8 @@ def _labelled_box_views(size=96, f=80.0, pitch_deg=10.0, ceiling=None):
         c2ws.append(c2w)
     cams = Cameras(np.array(c2ws), fx=f, fy=f, cx=size / 2, cy=size / 2, width=size, height=size)
     r, c = np.mgrid[0:size, 0:size]
-    faces = [(0, 3.0, 1), (0, -3.0, 1), (1, 2.0, 1), (1, -2.0, 1), (2, 0.0, 2)] + ([(2, 2.5, 3)] if ceiling is None else [])
+    faces = [(0, 3.0, 1), (0, -3.0, 1), (1, 2.0, 1), (1, -2.0, 1), (2, 0.0, 2)]
+    faces += [(2, 2.5, 3)] if ceiling is None else []
     for k in range(4):
         o, d = cams.rays(k, c.ravel(), r.ravel())
         best, cls = np.full(len(d), np.inf), np.zeros(len(d), np.int64)

@@ -50,18 +50,19 @@ Two walls of a box room, 40 points each; the ray from the middle looking along +
 
 from lift3d.sfm.planes.fit import FitSettings, fit_planes, point_classes
 from lift3d.sfm.planes.label_lines import (FloorLine, boundary_floor_hits, ceiling_boundary_points, ceiling_height,
-                                           ceiling_plane, ceiling_points, level_ceiling_height, sloped_ceiling,
-                                           floor_boundary_points, floor_line, label_boundary)
+                                           ceiling_plane, ceiling_points, floor_boundary_points, floor_line,
+                                           label_boundary, level_ceiling_height, sloped_ceiling)
 from lift3d.sfm.planes.model import StuffPlanes, contradicted, ray_plane_distance
 from lift3d.sfm.planes.pixel_targets import enclosed_segments, label_support
 from lift3d.sfm.planes.room_rules import (NewWalls, WallReach, add_walls, corner_cutters, correct_walls,
-                                          floor_line_classes, floor_line_walls, floor_plane, height_above, most_walls_hold,
-                                          settled_offset, square_walls, stretch_ids, wall_classes, wall_directions,
-                                          wall_reach)
+                                          floor_line_classes, floor_line_walls, floor_plane, height_above,
+                                          most_walls_hold, settled_offset, square_walls, stretch_ids, wall_classes,
+                                          wall_directions, wall_reach)
 
 __all__ = ["StuffPlanes", "ray_plane_distance", "contradicted", "point_classes", "FitSettings", "fit_planes",
            "label_boundary", "boundary_floor_hits", "floor_boundary_points", "FloorLine", "floor_line",
-           "ceiling_boundary_points", "ceiling_height", "ceiling_plane", "ceiling_points", "level_ceiling_height", "sloped_ceiling", "floor_plane", "height_above", "wall_classes", "floor_line_classes", "most_walls_hold",
+           "ceiling_boundary_points", "ceiling_height", "ceiling_plane", "ceiling_points", "level_ceiling_height",
+           "sloped_ceiling", "floor_plane", "height_above", "wall_classes", "floor_line_classes", "most_walls_hold",
            "wall_directions", "corner_cutters", "square_walls", "floor_line_walls", "correct_walls", "NewWalls",
            "add_walls", "settled_offset", "stretch_ids", "WallReach", "wall_reach", "enclosed_segments",
            "label_support"]

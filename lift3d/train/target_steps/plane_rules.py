@@ -17,8 +17,8 @@ from lift3d.data.scene import Scene
 from lift3d.data.stereo import DenseDepth
 from lift3d.sfm.planes import (FitSettings, NewWalls, StuffPlanes, add_walls, ceiling_boundary_points, ceiling_plane,
                                ceiling_points, contradicted, corner_cutters, correct_walls, fit_planes,
-                               floor_boundary_points, floor_line, floor_line_classes, floor_line_walls, most_walls_hold, point_classes,
-                               square_walls, wall_classes, wall_directions)
+                               floor_boundary_points, floor_line, floor_line_classes, floor_line_walls,
+                               most_walls_hold, point_classes, square_walls, wall_classes, wall_directions)
 from lift3d.train.target_steps.state import TargetContext, TargetState, TargetStep, setting
 
 
