@@ -8,6 +8,7 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
+from lift3d.sfm.planes.fit import _ransac_planes
 from lift3d.sfm.planes.model import StuffPlanes, ray_plane_distance
 
 
@@ -411,18 +412,11 @@ def sloped_ceiling(points: np.ndarray, eyes: np.ndarray, normal: np.ndarray, thr
     up = np.asarray(normal, np.float64) / np.linalg.norm(normal)
     if len(x) < max(min_points, 3):
         return None
-    rng = np.random.default_rng(seed)
-    idx = rng.integers(0, len(x), size=(iterations, 3))
-    n = np.cross(x[idx[:, 1]] - x[idx[:, 0]], x[idx[:, 2]] - x[idx[:, 0]])
-    norm = np.linalg.norm(n, axis=1)
-    ok = norm > 1e-9
-    if not ok.any():
+    found = _ransac_planes(x, threshold, iterations, np.random.default_rng(seed))
+    if not found:
         return None
-    n, a = n[ok] / norm[ok, None], x[idx[ok, 0]]
-    d = -np.einsum("ij,ij->i", n, a)
-    counts = (np.abs(x @ n.T + d) < threshold).sum(0)
-    k = int(np.argmax(counts))
-    inl = np.abs(x @ n[k] + d[k]) < threshold
+    (n, d), = found
+    inl = np.abs(x @ n + d) < threshold
     c = x[inl].mean(0)
     _, sv, vt = np.linalg.svd(x[inl] - c, full_matrices=False)
     best, offset = vt[2], float(-vt[2] @ c)

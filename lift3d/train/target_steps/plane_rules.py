@@ -314,12 +314,12 @@ class CeilingBoundary(TargetStep):
         if self.extend:
             planes, found["ceiling_extended"] = self.extended(planes, n, d, state, context)
             vertical = planes.vertical(n)
+        cams = context.scene.cameras.centers[np.asarray(context.frames, np.int64)]
         for c in [c for c in stuff if not any(c in k for k, v in zip(planes.classes, vertical) if not v)
                   and not most_walls_hold(planes, vertical, c, self.wall_share)]:
             points, eyes = ceiling_boundary_points(context.scene.cameras, context.frames, context.labels, planes, n,
                                                    [c], min_rows=context.plane.boundary_rows)
             found["ceiling_boundary_points"] += len(points)
-            cams = context.scene.cameras.centers[np.asarray(context.frames, np.int64)]
             plane, top = ceiling_plane(points, eyes, cams, n, d, threshold, state.min_points, slope=self.slope)
             if plane is None:
                 continue
