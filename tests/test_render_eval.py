@@ -739,8 +739,12 @@ def test_eval_without_3d_gt_scores_the_export_against_the_depth_maps(trained, tm
     # the points off the surface are placed in front of it, behind it or out of view: 1 - precision in all
     off = g["imprecise"]
     assert sum(off.values()) == pytest.approx(1.0 - g["precision"], abs=1e-3)
+    # the points no scored frame sees are left out of the observed precision, so it is never below the precision
+    assert g["precision_observed"] == pytest.approx(min(1.0, g["precision"] / (1 - off["unobserved"])), abs=1e-4)
+    assert g["precision_observed"] >= g["precision"] - 1e-4 and 0.0 <= g["fscore_observed"] <= 1.0
     table = format_eval_table(json_safe(m))
     assert "3D geometry" in table and "% of the diagonal" in table and "in front of it" in table
+    assert "a scored frame can judge" in table
 
 
 def test_eval_reports_3d_iou_per_class_and_the_smallest_objects(trained, evaluated):

@@ -472,7 +472,9 @@ def geometry_from_depth_block(points, scene: Scene, frames: Sequence[int]) -> di
     """Geometry of the run's exported points against the scored frames' depth maps back-projected (a real
     capture's depth kept for evaluation, ``lift3d convert --depth-as-gt``): accuracy, completeness, chamfer,
     precision, recall and F-score at ``tau`` = 1 % of the GT points' bounding-box diagonal
-    (:func:`lift3d.eval.points3d.geometry3d`); no labels (depth carries none)."""
+    (:func:`lift3d.eval.points3d.geometry3d`), where the points off the reference lie (:func:`where_off_surface`)
+    and the precision and F-score over the points it can judge (:func:`observed_scores`); no labels (depth carries
+    none)."""
     gt = depth_gt_points(scene, frames)
     if not len(gt):
         raise InputError(scene.root / "transforms.json", "the scored frames' depth maps hold no depth")
@@ -481,10 +483,30 @@ def geometry_from_depth_block(points, scene: Scene, frames: Sequence[int]) -> di
     block = geometry3d(xyz, gt, tau)
     block.pop("_gt_to_pred")
     off = block.pop("_pred_to_gt") > tau
+    imprecise = where_off_surface(xyz[off], scene, frames, tau, total=len(xyz))
     block.update(reference=depth_reference(scene, frames), frames=len(frames),
-                 source=f"export.{points.stats.get('source', DEFAULT_SOURCE)}",
-                 imprecise=where_off_surface(xyz[off], scene, frames, tau, total=len(xyz)))
+                 source=f"export.{points.stats.get('source', DEFAULT_SOURCE)}", imprecise=imprecise,
+                 **observed_scores(block["precision"], block["recall"], imprecise["unobserved"]))
     return block
+
+
+def observed_scores(precision: float, recall: float, unobserved: float) -> dict[str, float | None]:
+    """``precision_observed`` and ``fscore_observed``: precision over the exported points that the reference can
+    judge (within tau of it, or covered by some scored frame's depth), and the F-score with it. A point no scored
+    frame sees is neither right nor wrong against depth maps of those frames only (DTU's observation mask; a
+    capture's train views see more than its test views).
+
+    Examples
+    --------
+    >>> observed_scores(0.883, 0.994, 0.059)
+    {'precision_observed': 0.9384, 'fscore_observed': 0.9654}
+    """
+    judged = 1.0 - unobserved
+    if judged <= 0:
+        return {"precision_observed": None, "fscore_observed": None}
+    p = min(1.0, precision / judged)
+    f = 2 * p * recall / (p + recall) if p + recall > 0 else 0.0
+    return {"precision_observed": round(p, 4), "fscore_observed": round(f, 4)}
 
 
 def where_off_surface(xyz: np.ndarray, scene: Scene, frames: Sequence[int], tau: float, *, total: int) -> dict:

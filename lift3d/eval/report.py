@@ -142,6 +142,9 @@ def format_eval_table(m: dict) -> str:
             lines.append(f"3D points off the reference surface: {fmt(off.get('in_front'))} in front of it (floaters), "
                          f"{fmt(off.get('behind'))} behind it in every frame that sees their pixel, "
                          f"{fmt(off.get('unobserved'))} seen by no scored frame")
+        if g.get("fscore_observed") is not None:
+            lines.append(f"3D over the points a scored frame can judge: F-score {fmt(g['fscore_observed'])} "
+                         f"(P {fmt(g['precision_observed'])})")
     t = m.get("render_timing")
     if t:
         th = t.get("threads")
