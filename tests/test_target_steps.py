@@ -201,6 +201,7 @@ def test_the_floor_boundary_gives_walls_without_texture():
     assert len(state.planes) == 2 and not state.planes.vertical(UP).any()
     counts = FloorBoundary(step=1.0, tolerance=1.5).apply(state, context)
     assert counts["floor_boundary_points"] > 100
+    assert counts["floor_line_floors"] == [FLOOR] and counts["floor_line_walls_on_floor_plane"] == []
     walls = sorted(round(float(abs(o)), 1) for n, o in zip(state.planes.normal, state.planes.offset)
                    if abs(n @ UP) < 0.01)
     assert walls == [2.0, 2.0, 3.0, 3.0]

@@ -131,7 +131,9 @@ class FloorBoundary(TargetStep):
     """Wall points from where the labels put a wall directly on the floor: the ray through that boundary meets
     the floor plane at the wall's foot, and the wall rises vertically from there (no texture needed;
     :func:`lift3d.sfm.planes.floor_boundary_points`). The planes are fitted again with them. Records
-    ``floor_boundary_points``."""
+    ``floor_boundary_points``, the classes below the line (``floor_line_floors``) and those the floor plane holds
+    but that count as a wall's (``floor_line_walls_on_floor_plane``: :func:`lift3d.sfm.planes.floor_line_classes`).
+    """
 
     name = "floor-boundary"
     needs = frozenset({"room"})
@@ -153,7 +155,8 @@ class FloorBoundary(TargetStep):
             min_rows=context.plane.boundary_rows)
         if len(foot):
             state.fit.refit_with(state, context, (foot, foot_cls, foot_cam))
-        return {"floor_boundary_points": int(len(foot))}
+        return {"floor_boundary_points": int(len(foot)), "floor_line_floors": floors,
+                "floor_line_walls_on_floor_plane": sorted(set(walls) & set(planes.classes[f]))}
 
 
 @dataclass
