@@ -241,6 +241,40 @@ def test_inputs_other_than_files(tmp_path):
         points.as_geometry(np.zeros((4, 2)))
 
 
+def _turned_room(turn_deg: float, up: str = "z"):
+    """A 4 × 4 × 2.5 m room of stuff (walls as point lines, floor and ceiling as grids) turned about the up axis,
+    and a thing in its middle; axes swapped to put ``up`` where it says."""
+    t = np.radians(turn_deg)
+    turn = np.array([[np.cos(t), -np.sin(t), 0], [np.sin(t), np.cos(t), 0], [0, 0, 1]])
+    s, h = np.linspace(-2, 2, 41), np.linspace(0, 2.5, 11)
+    ss, hh = [a.ravel() for a in np.meshgrid(s, h)]
+    walls = {"near": np.c_[np.full_like(ss, 2), ss, hh], "far": np.c_[np.full_like(ss, -2), ss, hh],
+             "left": np.c_[ss, np.full_like(ss, 2), hh], "right": np.c_[ss, np.full_like(ss, -2), hh]}
+    gx, gy = [a.ravel() for a in np.meshgrid(s, s)]
+    parts = {**walls, "floor": np.c_[gx, gy, np.zeros_like(gx)], "ceiling": np.c_[gx, gy, np.full_like(gx, 2.5)],
+             "thing": np.array([[0.0, 0, 0.5], [0.2, 0, 0.7]])}
+    names = np.concatenate([[k] * len(v) for k, v in parts.items()])
+    xyz = np.concatenate(list(parts.values())) @ turn.T
+    view = turn @ np.array([1.0, 0.0, 0.6])  # from outside the near wall, above
+    if up == "-y":  # z-up → -y-up: (x, y, z) → (x, -z, y)
+        swap = np.array([[1.0, 0, 0], [0, 0, -1], [0, 1, 0]])
+        xyz, view = xyz @ swap.T, swap @ view
+    return xyz, np.where(names == "thing", 7, 0), names, view
+
+
+@pytest.mark.parametrize("turn_deg,up", [(0.0, "z"), (45.0, "z"), (30.0, "-y")])
+def test_the_cutaway_takes_the_near_wall_of_a_room_turned_about_its_up_axis(turn_deg, up):
+    # A capture keeps its own world frame and a room need not be a box along the axes: cutting only the faces of
+    # the axis-aligned bounding box left most of a near wall turned 45° standing in front of the room (it took
+    # 31 % of it, near the corners).
+    xyz, inst, names, view = _turned_room(turn_deg, up)
+    keep = points.cutaway_mask(xyz, inst, view, up=up)
+    cut = {k: 1 - keep[names == k].mean() for k in np.unique(names)}
+    assert cut["near"] > 0.95 and cut["ceiling"] > 0.95
+    # of the far wall only the top row goes, with the ceiling it meets
+    assert cut["far"] <= 1 / 11 + 1e-9 and cut["thing"] == 0 and cut["floor"] < 0.2
+
+
 def test_cutaway_and_hide():
     xyz = np.array([[0, 0, 0], [0, 0, 1.0], [0, 0, 0.5], [0, 0, 1.0], [-1, 0, 0.5], [1, 0, 0.5]])
     inst = np.array([0, 0, 0, 5, 0, 0])

@@ -508,14 +508,19 @@ def _resolve_hidden(hide: Iterable[str | int], classes: Sequence[Category], wher
     return out
 
 
-def cutaway_mask(xyz: np.ndarray, instance: np.ndarray, direction: Sequence[float], *,
-                 margin: float = 0.05, facing: float = 0.3) -> np.ndarray:
-    """Which points to keep in a "dollhouse" cutaway: stuff near the bounding-box sides that face the camera
+def cutaway_mask(xyz: np.ndarray, instance: np.ndarray, direction: Sequence[float], *, up: str = "z",
+                 margin: float = 0.05, facing: float = 0.3, sides: int = 72,
+                 max_sample: int = 100_000) -> np.ndarray:
+    """Which points to keep in a "dollhouse" cutaway: stuff near the sides of the scene that face the camera
     (the near walls, the ceiling from above) is cut, so the objects inside a room are visible.
 
-    Only stuff (instance ≤ 0) is ever cut; every instance stays whole. The box is taken between the 0.5th
-    and 99.5th percentile of the points (a few outliers must not move the walls), and a side faces the
-    camera when its outward normal has a dot product above ``facing`` with the viewing direction.
+    Only stuff (instance ≤ 0) is ever cut; every instance stays whole. The sides are the scene's top and bottom
+    along ``up`` and its outline seen from above, taken as the supporting lines in ``sides`` horizontal
+    directions: a room whose walls are not along the coordinate axes (a capture in its own world frame, a
+    hexagonal room) has its near walls cut as well as a box along the axes. Each side lies at the 99.5th
+    percentile of the points along its outward normal (a few outliers must not move the walls); it faces the
+    camera when that normal has a dot product above ``facing`` with the viewing direction, and the stuff within
+    ``margin`` of the points' extent along it is cut.
 
     Parameters
     ----------
@@ -525,10 +530,16 @@ def cutaway_mask(xyz: np.ndarray, instance: np.ndarray, direction: Sequence[floa
         ``[N]`` instance ids (0 on stuff).
     direction : sequence of float
         From the scene towards the camera.
+    up : str
+        The scene's up axis (``x``, ``y``, ``z`` or their negatives).
     margin : float
-        Thickness of the cut layer as a fraction of the box's extent along that axis.
+        Thickness of the cut layer as a fraction of the extent along the side's normal.
     facing : float
         Minimum cosine between a side's normal and ``direction``.
+    sides : int
+        Horizontal directions of the outline's sides (every 360° / ``sides``).
+    max_sample : int
+        Most points the sides' percentiles are taken from (an even stride).
 
     Returns
     -------
@@ -540,6 +551,15 @@ def cutaway_mask(xyz: np.ndarray, instance: np.ndarray, direction: Sequence[floa
     >>> xyz = np.array([[0, 0, 0], [0, 0, 10], [0, 0, 5], [0, 0, 10.0]])
     >>> cutaway_mask(xyz, np.array([0, 0, 0, 7]), (0, 0, 1)).tolist()  # from above: the stuff "ceiling" goes
     [True, False, True, True]
+
+    A square room turned 30° about the up axis, seen from outside its wall at +x' (its own x axis): that wall
+    goes, the far one stays.
+
+    >>> t = np.radians(30)
+    >>> turn = np.array([[np.cos(t), -np.sin(t), 0], [np.sin(t), np.cos(t), 0], [0, 0, 1]])
+    >>> walls = np.array([[2, 0, 1], [-2, 0, 1], [0, 0, 0], [1.9, 0, 1.0]]) @ turn.T
+    >>> cutaway_mask(walls, np.array([0, 0, 0, 3]), turn @ [1, 0, 0.2]).tolist()
+    [False, True, True, True]
     """
     xyz = np.asarray(xyz, np.float64)
     d = np.asarray(direction, np.float64)
@@ -547,6 +567,24 @@ def cutaway_mask(xyz: np.ndarray, instance: np.ndarray, direction: Sequence[floa
     keep = np.ones(len(xyz), bool)
     if len(xyz) == 0:
         return keep
+    u = _axis(up)
+    # two horizontal axes: any vector not along up, made orthogonal to it
+    a = np.eye(3)[int(np.argmin(np.abs(u)))]
+    a = a - (a @ u) * u
+    a /= np.linalg.norm(a)
+    b = np.cross(u, a)
+    angles = 2 * np.pi * np.arange(max(int(sides), 4)) / max(int(sides), 4)
+    normals = np.r_[u[None], -u[None], np.cos(angles)[:, None] * a + np.sin(angles)[:, None] * b]
+    normals = normals[normals @ d > facing]
+    if not len(normals):
+        return keep
+    stuff = np.asarray(instance) <= 0
+    along = xyz @ normals.T  # [N, S]
+    sample = along[:: max(1, -(-len(xyz) // max(int(max_sample), 1)))]
+    lo, hi = np.percentile(sample, [0.5, 99.5], axis=0)
+    extent = hi - lo
+    near = ((along > hi - margin * extent) & (extent > 0)).any(1)
+    return keep & ~(stuff & near)
     lo, hi = np.percentile(xyz, [0.5, 99.5], axis=0)
     stuff = np.asarray(instance) <= 0
     for axis in range(3):
@@ -677,7 +715,7 @@ class InstanceFigure:
                                          elevation=elevation)
         direction = np.asarray(position) - np.asarray(focal)
         geom = self.geometry
-        keep = (cutaway_mask(geom.xyz, geom.instance, direction) if self.cutaway
+        keep = (cutaway_mask(geom.xyz, geom.instance, direction, up=self.up) if self.cutaway
                 else np.ones(len(geom.xyz), bool))
         if not keep.any():  # a cloud of nothing but stuff seen from its own side: show it uncut
             keep[:] = True
