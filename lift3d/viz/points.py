@@ -579,22 +579,12 @@ def cutaway_mask(xyz: np.ndarray, instance: np.ndarray, direction: Sequence[floa
     if not len(normals):
         return keep
     stuff = np.asarray(instance) <= 0
-    along = xyz @ normals.T  # [N, S]
-    sample = along[:: max(1, -(-len(xyz) // max(int(max_sample), 1)))]
-    lo, hi = np.percentile(sample, [0.5, 99.5], axis=0)
-    extent = hi - lo
-    near = ((along > hi - margin * extent) & (extent > 0)).any(1)
-    return keep & ~(stuff & near)
-    lo, hi = np.percentile(xyz, [0.5, 99.5], axis=0)
-    stuff = np.asarray(instance) <= 0
-    for axis in range(3):
-        extent = hi[axis] - lo[axis]
-        if extent <= 0:
-            continue
-        for sign, face in ((1.0, hi[axis]), (-1.0, lo[axis])):
-            if sign * d[axis] > facing:
-                near = sign * (xyz[:, axis] - face) > -margin * extent
-                keep &= ~(stuff & near)
+    stride = max(1, -(-len(xyz) // max(int(max_sample), 1)))
+    for n in normals:  # one side at a time: [N, sides] at once is hundreds of MB for a million points
+        along = xyz @ n
+        lo, hi = np.percentile(along[::stride], [0.5, 99.5])
+        if hi > lo:
+            keep &= ~(stuff & (along > hi - margin * (hi - lo)))
     return keep
 
 
