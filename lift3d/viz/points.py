@@ -573,7 +573,8 @@ def cutaway_mask(xyz: np.ndarray, instance: np.ndarray, direction: Sequence[floa
     a = a - (a @ u) * u
     a /= np.linalg.norm(a)
     b = np.cross(u, a)
-    angles = 2 * np.pi * np.arange(max(int(sides), 4)) / max(int(sides), 4)
+    count = max(int(sides), 4)
+    angles = 2 * np.pi * np.arange(count) / count
     normals = np.r_[u[None], -u[None], np.cos(angles)[:, None] * a + np.sin(angles)[:, None] * b]
     normals = normals[normals @ d > facing]
     if not len(normals):

@@ -360,14 +360,14 @@ class CeilingBoundary(TargetStep):
                 if most_walls_hold(planes, vertical, c, self.wall_share):
                     continue
                 grown = self.plane_over_pixels(planes, (planes.normal[k], float(planes.offset[k])), c, state,
-                                                     context)
+                                               context)
                 if grown is not None:
                     count += len(grown) > len(planes)
                     planes = grown
         return planes, count
 
     def plane_over_pixels(self, planes: StuffPlanes, plane: tuple[np.ndarray, float], class_id: int,
-                                state: TargetState, context: TargetContext) -> StuffPlanes | None:
+                          state: TargetState, context: TargetContext) -> StuffPlanes | None:
         """The planes and one more, ``plane = (normal, offset)``, over the points where the rays of the pixels the
         labels call ``class_id`` meet it (:func:`lift3d.sfm.planes.ceiling_points`), holding that class; None when
         the views see through it there."""
