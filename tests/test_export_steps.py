@@ -343,3 +343,27 @@ def test_view_surface_keeps_what_the_views_render_and_drops_what_they_see_throug
     assert counts["removed"] == 2 and counts["tolerance"] == pytest.approx(0.1)
     np.testing.assert_allclose(state.points.xyz / SCALE, [on_wall, in_hole])  # the hole: nothing says it is wrong
     assert ViewSurface().skip(PointState(pts), _context(source="tsdf")) == "the tsdf source draws the views' surfaces already"
+
+
+def test_sensor_surface_keeps_what_the_depth_maps_saw_and_their_holes():
+    from lift3d.data.cameras import Cameras
+    from lift3d.export.steps import SensorSurface
+
+    # Three cameras at the origin looking down -z at a wall 2 world units away; only frame 0 has a depth map
+    # (with a hole on the left), frame 1 has none and frame 2's is kept for evaluation only.
+    cams = Cameras(c2w=np.repeat(np.eye(4)[None], 3, 0), fx=10.0, fy=10.0, cx=10.0, cy=10.0, width=20, height=20)
+    depth = np.full((20, 20), 2.0, np.float32)
+    depth[:, :5] = 0.0
+    frames = [SimpleNamespace(depth_path="d0.png"), SimpleNamespace(depth_path=None),
+              SimpleNamespace(depth_path=None, gt_depth_path="gt2.png")]
+    ctx = _context(cameras=cams, frames=frames, depth=lambda i: depth if i == 0 else None)
+    on_wall, behind, in_front, in_hole = [0.0, 0.0, -2.0], [0.0, 0.0, -2.6], [0.0, 0.0, -1.2], [-1.4, 0.0, -2.5]
+    state = PointState(_labelled([on_wall, behind, in_front, in_hole], [1, 1, 1, 1]))  # world frame
+    counts = SensorSurface(tolerance_voxels=4.0).apply(state, ctx)  # within 0.1 world units of the wall
+    assert counts["removed"] == 2 and counts["depth_maps"] == 1 and counts["uncovered"] == 1
+    assert counts["tolerance"] == pytest.approx(0.1)
+    np.testing.assert_allclose(state.points.xyz, [on_wall, in_hole])  # the hole: nothing says it is wrong
+    no_depth = _context(cameras=cams, frames=frames[1:] * 2, depth=lambda i: None)
+    assert SensorSurface().skip(PointState(state.points), no_depth) == "no training frame has a depth map"
+    with pytest.raises(InputError, match="--sensor-surface"):
+        SensorSurface(min_views=0).check()

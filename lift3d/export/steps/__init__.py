@@ -11,8 +11,8 @@ A new step is a class in one of these modules (or a new module for a new kind of
 
 Examples
 --------
->>> [cls.name for cls in POINT_STEPS][:4]
-['box-fill', 'thing-fill', 'view-surface', 'heads']
+>>> [cls.name for cls in POINT_STEPS][:5]
+['box-fill', 'thing-fill', 'view-surface', 'sensor-surface', 'heads']
 >>> sorted(StuffCorners.needs), sorted(BoxFill.needs)
 (['room'], ['box'])
 """
@@ -21,16 +21,17 @@ from __future__ import annotations
 
 from lift3d.export.steps.base import ExportStep, PointState, StepContext, run_point_steps, step_records
 from lift3d.export.steps.fills import BoxFill, ThingFill
-from lift3d.export.steps.filters import (ConfidenceFilter, Crop, FrameConversion, OutlierRemoval, ViewSurface,
-                                         VoxelDownsample)
+from lift3d.export.steps.filters import (ConfidenceFilter, Crop, FrameConversion, OutlierRemoval, SensorSurface,
+                                         ViewSurface, VoxelDownsample)
 from lift3d.export.steps.instances import FilledJoin, InstanceAssignment, InstanceCleanup, LinkRadius
 from lift3d.export.steps.labels import LabelHeads, ViewVote
 from lift3d.export.steps.stuff import StuffCorners, StuffOrientation
 
 #: The point steps in the order they run.
 POINT_STEPS: tuple[type[ExportStep], ...] = (
-    BoxFill, ThingFill, ViewSurface, LabelHeads, ConfidenceFilter, FrameConversion, Crop, OutlierRemoval, VoxelDownsample,
-    LinkRadius, ViewVote, StuffOrientation, StuffCorners, InstanceAssignment, FilledJoin, InstanceCleanup,
+    BoxFill, ThingFill, ViewSurface, SensorSurface, LabelHeads, ConfidenceFilter, FrameConversion, Crop,
+    OutlierRemoval, VoxelDownsample, LinkRadius, ViewVote, StuffOrientation, StuffCorners, InstanceAssignment,
+    FilledJoin, InstanceCleanup,
 )
 
 __all__ = ["POINT_STEPS", "ExportStep", "PointState", "StepContext", "run_point_steps", "step_records",

@@ -1,5 +1,5 @@
-"""Steps that keep a subset of the points or move them all: the views' surface, the confidence filter, the output
-frame, the crop box, outlier removal and voxel down-sampling."""
+"""Steps that keep a subset of the points or move them all: the views' surface, the sensor's surface, the
+confidence filter, the output frame, the crop box, outlier removal and voxel down-sampling."""
 
 from __future__ import annotations
 
@@ -57,6 +57,47 @@ class ViewSurface(ExportStep):
         downscale = next(iter(depths.values()))[1] if depths else 1
         return {"removed": int((~keep).sum()), "views": len(depths), "downscale": int(downscale),
                 "tolerance": round(tolerance, 5), "median_views": float(np.median(views)) if len(views) else 0.0}
+
+
+@dataclass
+class SensorSurface(ExportStep):
+    """Only surface the depth sensor saw stays: a point goes when training frames' own depth maps cover its pixel
+    and none of them passes within ``tolerance_voxels`` voxels of it. Where the scene has depth maps, they are
+    better evidence than the field's rendered depth (``view-surface``): a field trained on them still holds surface
+    the sensor never saw (the far side of a thin object; a wall seen through the holes the isosurface has in the
+    chair in front of it), and the visibility test lets it through. A point no depth map covers (the sensor's holes: glass, dark or shiny surfaces,
+    beyond its range) stays: nothing says it is not there. Frames whose depth is kept for evaluation only
+    (``lift3d convert --depth-as-gt``) are never used."""
+
+    name = "sensor-surface"
+    needs_points = True
+    tolerance_voxels: float = 1.0
+    """How far from a depth map's surface a point may lie, in voxels of the source's grid (the isosurface grid
+    for ``surface``): the field's own resolution, as for ``view-surface`` (a depth camera's noise is below it
+    within a few metres)."""
+    min_views: int = 1
+    """Fewest depth maps whose surface must pass through a point."""
+
+    def check(self) -> None:
+        if self.tolerance_voxels < 0 or self.min_views < 1:
+            raise InputError("--sensor-surface.*", "tolerance-voxels must be >= 0 and min-views >= 1")
+
+    def skip(self, state: PointState, context: StepContext) -> str | None:
+        scene = context.scene
+        if not any(scene.frames[int(i)].depth_path is not None for i in train_frames(scene)):
+            return "no training frame has a depth map"
+        return super().skip(state, context)
+
+    def apply(self, state: PointState, context: StepContext) -> dict:
+        scene, p = context.scene, state.points
+        depths = view_depths(scene, train_frames(scene), None)  # the frames' own depth maps only
+        tolerance = self.tolerance_voxels * 0.5 * context.grid_link / float(context.loaded.norm.scale)
+        views, covered = views_on_surface(context.world(p), scene, depths, tolerance)
+        keep = (views >= self.min_views) | (covered == 0)
+        state.points = p.take(keep)
+        return {"removed": int((~keep).sum()), "depth_maps": len(depths), "tolerance": round(tolerance, 5),
+                "uncovered": int((covered == 0).sum()),
+                "median_views": float(np.median(views)) if len(views) else 0.0}
 
 
 @dataclass
