@@ -341,6 +341,21 @@ def test_gt_and_depth_size_differs_from_image(tiny_scene: Path) -> None:
     _expect_error(lambda: scene.depth(1), depth_path, "depth map is 16x13")
 
 
+def test_depth_that_a_float_file_marks_unknown_reads_as_zero(tiny_scene: Path) -> None:
+    """NaN, ±inf and negative markers of a float depth map (a TIFF here) are unknown, as 0 is: nothing downstream
+    (scene space, depth loss, export, eval) sees them as a depth."""
+    import cv2
+
+    depth = np.full((12, 16), 2000.0, np.float32)  # the scene's unit is mm
+    depth[0, :4] = [np.nan, np.inf, -np.inf, -1.0]
+    cv2.imwrite(str(tiny_scene / "depth" / "frame_001.tiff"), depth)
+    _edit_json(tiny_scene / "transforms.json",
+               lambda m: m["frames"][1].__setitem__("depth_file_path", "depth/frame_001.tiff"))
+    d = load_scene(tiny_scene).depth(1)
+    assert d.dtype == np.float32 and d[0, :4].tolist() == [0.0] * 4
+    assert np.isfinite(d).all() and d[1:].min() == pytest.approx(2.0)
+
+
 def test_image_size_differs_from_intrinsics(tiny_scene: Path) -> None:
     def edit(meta: dict) -> None:
         meta["frames"][0]["w"] = 20

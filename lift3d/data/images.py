@@ -174,19 +174,31 @@ def read_panoptic_png(path: str | Path) -> np.ndarray:
 
 
 def read_depth(path: str | Path, unit_scale: float) -> np.ndarray:
-    """Read a depth image (uint16 in ``unit_scale`` metres per unit, 0 = unknown) as float32 metres
-    (unknown → 0). ``.npy`` float arrays in metres are accepted too."""
+    """Read a depth image (uint16 in ``unit_scale`` metres per unit, 0 = unknown; or float32, as TIFF) as float32
+    metres. ``.npy`` float arrays in metres are accepted too. Unknown is 0 whatever the file said: 0, NaN, ±inf
+    (what float formats write for no return) or a negative marker.
+
+    Examples
+    --------
+    >>> import tempfile
+    >>> path = Path(tempfile.mkdtemp()) / "d.npy"
+    >>> np.save(path, np.array([[1.5, np.nan, np.inf, -1.0]], np.float32))
+    >>> read_depth(path, 1.0).tolist()
+    [[1.5, 0.0, 0.0, 0.0]]
+    """
     path = Path(path)
     if path.suffix == ".npy":
         try:
             d = np.load(path).astype(np.float32)
         except (OSError, ValueError) as exc:
             raise InputError(path, f"not a readable .npy depth ({exc})") from exc
-        return np.nan_to_num(d, nan=0.0, posinf=0.0, neginf=0.0)
-    img = _imread(path, cv2.IMREAD_UNCHANGED)
-    if img.ndim != 2:
-        raise InputError(path, "depth must be a single-channel image")
-    return img.astype(np.float32) * np.float32(unit_scale)
+    else:
+        img = _imread(path, cv2.IMREAD_UNCHANGED)
+        if img.ndim != 2:
+            raise InputError(path, "depth must be a single-channel image")
+        d = img.astype(np.float32) * np.float32(unit_scale)
+    with np.errstate(invalid="ignore"):
+        return np.where(np.isfinite(d) & (d > 0), d, np.float32(0.0)).astype(np.float32, copy=False)
 
 
 def _encode_png(path: Path, img: np.ndarray) -> bytes:
