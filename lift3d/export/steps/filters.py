@@ -70,6 +70,7 @@ class SensorSurface(ExportStep):
     (``lift3d convert --depth-as-gt``) are never used."""
 
     name = "sensor-surface"
+    flags = {"enabled": "--no-sensor-surface"}
     needs_points = True
     tolerance_voxels: float = 1.0
     """How far from a depth map's surface a point may lie, in voxels of the source's grid (the isosurface grid
