@@ -804,6 +804,10 @@ def test_cli_end_to_end(tiny_run, tmp_path, capsys):
     meta = json.loads((out / "metadata.json").read_text())
     assert meta["source_run"]["path"] == str(tiny_run.resolve()) and meta["options"]["min_points"] == 20
     assert meta["command"].startswith("lift3d ")
+    # the scene's depth maps judge the points: every training frame's map took part
+    sensor = next(r for r in meta["steps"]["points"] if r["name"] == "sensor-surface")
+    train_frames = load_scene(meta["source_run"]["scene"]).split("train")
+    assert sensor["ran"] and sensor["counts"]["depth_maps"] == len(train_frames)
     gt = read_labelled_ply(load_scene(meta["source_run"]["scene"]).gt_points_path)
     assert np.linalg.norm(pts.xyz.mean(0) - gt["xyz"].mean(0)) < np.linalg.norm(np.ptp(gt["xyz"], 0))
 
@@ -840,6 +844,7 @@ def test_a_room_from_images_alone_keeps_its_field_and_export_inside_its_scene_bo
     outside = torch.stack([(lo + hi) / 2 + torch.tensor([0.0, 0.0, 1.0]) * ((hi - lo)[2] / 2 + 0.01)])
     assert not bool(space(outside)[1].any())
     pts = extract_labelled_points(loaded, scene, num_points=4000)
+    assert pts.record("sensor-surface")["why"] == "no training frame has a depth map"
     voxel = 2.0 / loaded.norm.scale / pts.thresholds["surface_resolution"]
     assert np.all(pts.xyz >= aabb[0] - pad - 1.5 * voxel) and np.all(pts.xyz <= aabb[1] + pad + 1.5 * voxel)
 

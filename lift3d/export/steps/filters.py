@@ -65,9 +65,9 @@ class SensorSurface(ExportStep):
     and none of them passes within ``tolerance_voxels`` voxels of it. Where the scene has depth maps, they are
     better evidence than the field's rendered depth (``view-surface``): a field trained on them still holds surface
     the sensor never saw (the far side of a thin object; a wall seen through the holes the isosurface has in the
-    chair in front of it), and the visibility test lets it through. A point no depth map covers (the sensor's holes: glass, dark or shiny surfaces,
-    beyond its range) stays: nothing says it is not there. Frames whose depth is kept for evaluation only
-    (``lift3d convert --depth-as-gt``) are never used."""
+    chair in front of it), and the visibility test lets it through. A point no depth map covers (the sensor's
+    holes: glass, dark or shiny surfaces, beyond its range) stays: nothing says it is not there. Frames whose depth
+    is kept for evaluation only (``lift3d convert --depth-as-gt``) are never used."""
 
     name = "sensor-surface"
     flags = {"enabled": "--no-sensor-surface"}
