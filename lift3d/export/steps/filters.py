@@ -18,6 +18,16 @@ from lift3d.export.views import rendered_depth, view_depths, views_on_surface
 from lift3d.export.visibility import train_frames
 
 
+def _on_views_surfaces(points, context: StepContext, depths: dict, tolerance_voxels: float, min_views: int):
+    """``(keep, views, covered, tolerance)``: the points that at least ``min_views`` of the views' surfaces
+    (:func:`lift3d.export.views.views_on_surface`) pass within ``tolerance_voxels`` voxels of, or that no view covers;
+    the tolerance in world units."""
+    # grid_link is two voxels of the source's grid (normalised units)
+    tolerance = tolerance_voxels * 0.5 * context.grid_link / float(context.loaded.norm.scale)
+    views, covered = views_on_surface(context.world(points), context.scene, depths, tolerance)
+    return (views >= min_views) | (covered == 0), views, covered, tolerance
+
+
 @dataclass
 class ViewSurface(ExportStep):
     """Only the isosurface the training views render stays: a point goes when views render a surface at its pixel
@@ -49,10 +59,7 @@ class ViewSurface(ExportStep):
         scene, p = context.scene, state.points
         depths = view_depths(scene, train_frames(scene), rendered_depth(context.loaded, scene, context.view_depth_cache),
                              own_depth=False)
-        # grid_link is two isosurface voxels (normalised units)
-        tolerance = self.tolerance_voxels * 0.5 * context.grid_link / float(context.loaded.norm.scale)
-        views, covered = views_on_surface(context.world(p), scene, depths, tolerance)
-        keep = (views >= self.min_views) | (covered == 0)
+        keep, views, covered, tolerance = _on_views_surfaces(p, context, depths, self.tolerance_voxels, self.min_views)
         state.points = p.take(keep)
         downscale = next(iter(depths.values()))[1] if depths else 1
         return {"removed": int((~keep).sum()), "views": len(depths), "downscale": int(downscale),
@@ -92,9 +99,7 @@ class SensorSurface(ExportStep):
     def apply(self, state: PointState, context: StepContext) -> dict:
         scene, p = context.scene, state.points
         depths = view_depths(scene, train_frames(scene), None)  # the frames' own depth maps only
-        tolerance = self.tolerance_voxels * 0.5 * context.grid_link / float(context.loaded.norm.scale)
-        views, covered = views_on_surface(context.world(p), scene, depths, tolerance)
-        keep = (views >= self.min_views) | (covered == 0)
+        keep, views, covered, tolerance = _on_views_surfaces(p, context, depths, self.tolerance_voxels, self.min_views)
         state.points = p.take(keep)
         return {"removed": int((~keep).sum()), "depth_maps": len(depths), "tolerance": round(tolerance, 5),
                 "uncovered": int((covered == 0).sum()),
