@@ -60,8 +60,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from lift3d.sfm.planes.label_lines import boundary_floor_hits
-from lift3d.sfm.planes.model import _plane_basis, ray_plane_distance
+from lift3d.sfm.planes.model import ray_plane_distance
 from lift3d.sfm.planes.room_rules import stretch_ids
+from lift3d.utils.geometry import plane_basis
 
 
 @dataclass
@@ -234,7 +235,7 @@ def standing_faces(cameras, frames, labels: dict[int, np.ndarray], normal: np.nd
     keep = top > 0
     feet, cls, view, top, eye = feet[keep], cls[keep], view[keep], top[keep], eye[keep]
     rng = np.random.default_rng(s.seed)
-    basis = _plane_basis(normal)
+    basis = plane_basis(normal)
     faces = []
     for c in np.unique(cls):
         m = cls == c

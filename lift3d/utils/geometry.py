@@ -1,4 +1,4 @@
-"""Small triangle-mesh helpers shared by the synthetic scenes and the export."""
+"""Small geometry helpers shared by the synthetic scenes, the plane fits, the export and the pictures."""
 
 from __future__ import annotations
 
@@ -25,3 +25,17 @@ def vertex_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
     for k in range(3):
         np.add.at(n, faces[:, k], face_normal)
     return n / np.maximum(np.linalg.norm(n, axis=1, keepdims=True), 1e-12)
+
+
+def plane_basis(n: np.ndarray) -> np.ndarray:
+    """``[2, 3]`` orthonormal vectors spanning the plane with unit normal ``n`` (``n``, ``e1``, ``e2`` right-handed).
+
+    Examples
+    --------
+    >>> plane_basis(np.array([0.0, 0.0, 1.0])).tolist()
+    [[0.0, 1.0, 0.0], [-1.0, 0.0, 0.0]]
+    """
+    helper = np.eye(3)[int(np.argmin(np.abs(n)))]
+    e1 = np.cross(n, helper)
+    e1 /= np.linalg.norm(e1)
+    return np.stack([e1, np.cross(n, e1)])

@@ -48,6 +48,7 @@ from lift3d.data.ply import read_labelled_ply
 from lift3d.errors import InputError
 from lift3d.export.api import instances
 from lift3d.utils.atomic import write_bytes_atomic
+from lift3d.utils.geometry import plane_basis
 from lift3d.viz.palette import (
     INSTANCE_NONE,
     classes_beside,
@@ -568,11 +569,7 @@ def cutaway_mask(xyz: np.ndarray, instance: np.ndarray, direction: Sequence[floa
     if len(xyz) == 0:
         return keep
     u = _axis(up)
-    # two horizontal axes: any vector not along up, made orthogonal to it
-    a = np.eye(3)[int(np.argmin(np.abs(u)))]
-    a = a - (a @ u) * u
-    a /= np.linalg.norm(a)
-    b = np.cross(u, a)
+    a, b = plane_basis(u)  # two horizontal axes
     count = max(int(sides), 4)
     angles = 2 * np.pi * np.arange(count) / count
     normals = np.r_[u[None], -u[None], np.cos(angles)[:, None] * a + np.sin(angles)[:, None] * b]

@@ -12,6 +12,8 @@ from dataclasses import dataclass, field, replace
 
 import numpy as np
 
+from lift3d.utils.geometry import plane_basis
+
 
 @dataclass
 class StuffPlanes:
@@ -259,7 +261,7 @@ def _extent(pts: np.ndarray, n: np.ndarray, threshold: float):
     from scipy.spatial import ConvexHull, QhullError
 
     origin = pts.mean(0)
-    basis = _plane_basis(n)
+    basis = plane_basis(n)
     p2 = (pts - origin) @ basis.T
     # Points along a line (one row of keypoints, or the corner where two walls meet, which every plane through
     # it fits) do not fix a plane: most of them must spread in both directions of the plane.
@@ -337,9 +339,3 @@ def _cell_keys(ij: np.ndarray) -> np.ndarray:
     return (ij[:, 0] + 2 ** 30) * 2 ** 31 + (ij[:, 1] + 2 ** 30)
 
 
-def _plane_basis(n: np.ndarray) -> np.ndarray:
-    """``[2, 3]`` orthonormal vectors spanning the plane with normal ``n``."""
-    helper = np.eye(3)[int(np.argmin(np.abs(n)))]
-    e1 = np.cross(n, helper)
-    e1 /= np.linalg.norm(e1)
-    return np.stack([e1, np.cross(n, e1)])
