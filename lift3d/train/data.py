@@ -86,7 +86,7 @@ class TrainingData:
             conf[a:b] = lab.confidence.reshape(-1)
             d = scene.depth(int(i)) if scene.has_depth else None
             if d is not None:
-                d = np.where(np.isfinite(d) & (d > 0), d, 0).reshape(-1)
+                d = d.reshape(-1)  # unknown depth is 0 already (read_depth)
                 if depth is not None:
                     depth[a:b] = d * depth_scale
             thing_parts.append(_thing_segments(k, compact, cats[a:b], d, thing_categories,
