@@ -425,7 +425,7 @@ def test_thing_fill_adds_the_rendered_surface_of_a_soft_thing_where_the_views_la
     # join each other.
     import lift3d.export.steps.instances as instance_steps
 
-    monkeypatch.setattr(instance_steps, "join_filled_instances", lambda xyz, sem, inst, filled, radius: (inst, 0))
+    monkeypatch.setattr(instance_steps, "join_filled_instances", lambda xyz, sem, inst, filled, radius, channel=None: (inst, 0))
     with dense_uniform_samples(model):
         apart = extract_labelled_points(loaded, things_seen, voxel_size=0.02, **kw)
     pieces = len(np.unique(voxels.instance[near_b(voxels)]))

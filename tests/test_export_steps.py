@@ -295,12 +295,19 @@ def test_stuff_corners_replace_a_rounded_edge_by_two_surfaces_inside_the_crop(mo
 
 def test_instances_get_contiguous_ids_and_filled_patches_join_them():
     xyz = np.array([[0.0, 0, 0], [0.05, 0, 0], [0.2, 0, 0], [2.0, 0, 0]])
-    state = PointState(_labelled(xyz, [5, 5, 5, 1], channel=[1, 1, 2, 0]), link_radius=0.1)
+    state = PointState(_labelled(xyz, [5, 5, 5, 1], channel=[1, 1, 1, 0]), link_radius=0.1)
     state.points.filled = np.array([False, False, True, False])
     InstanceAssignment().apply(state, _context())
     assert state.points.instance.tolist() == [1, 1, 2, 0]
     assert FilledJoin().apply(state, _context()) == {"joined": 1}
     assert state.points.instance.tolist() == [1, 1, 1, 0]
+    # A filled piece the field puts on another instance channel is another object: it joins only when asked to
+    # ignore the channels.
+    for same_channel, joined in ((True, 0), (False, 1)):
+        state = PointState(_labelled(xyz, [5, 5, 5, 1], channel=[1, 1, 2, 0]), link_radius=0.1)
+        state.points.filled = np.array([False, False, True, False])
+        InstanceAssignment().apply(state, _context())
+        assert FilledJoin(same_channel=same_channel).apply(state, _context()) == {"joined": joined}
     assert FilledJoin().skip(PointState(_labelled(xyz, [5, 5, 5, 1])), _context()) == "no filled points"
     with pytest.raises(InputError, match="--min-points"):
         InstanceAssignment(min_points=-1).check()

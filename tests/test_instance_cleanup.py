@@ -277,6 +277,30 @@ def test_a_whole_object_of_mostly_filled_points_does_not_join_a_smaller_neighbou
     assert (out[441:] == out[241]).all()                                  # the patch joined the second table
 
 
+def test_a_mostly_filled_object_of_its_own_instance_channel_does_not_join_its_neighbour():
+    from lift3d.export.instances import join_filled_instances
+
+    # Two boxes 0.2 m apart (images only): the isosurface reaches the second barely, so its points are mostly
+    # filled and within reach of the first. The field gives it a channel of its own: it is another box, not a patch
+    # of the first. A filled patch on the first box's channel still joins it.
+    rng = np.random.default_rng(2)
+    first = rng.uniform(0, 0.4, (300, 3))                                 # instance 1, channel 4
+    second = rng.uniform(0, 0.3, (120, 3)) + [0.6, 0, 0]                  # instance 2, channel 9, 100 of 120 filled
+    patch = rng.uniform(0, 0.05, (20, 3)) + [0.45, 0.35, 0]               # instance 3, channel 4, filled
+    xyz = np.r_[first, second, patch]
+    instance = np.r_[np.full(300, 1), np.full(120, 2), np.full(20, 3)]
+    channel = np.r_[np.full(300, 4), np.full(120, 9), np.full(20, 4)]
+    filled = np.r_[np.zeros(300, bool), np.arange(120) < 100, np.ones(20, bool)]
+    semantic = np.full(len(xyz), 8)
+    out, joined = join_filled_instances(xyz, semantic, instance, filled, radius=0.3, channel=channel)
+    assert joined == 1
+    assert (out[300:420] == out[300]).all() and out[300] != out[0]       # the second box stays apart
+    assert (out[420:] == out[0]).all()                                    # the patch joined the first box
+    # Without the channels the second box joins the first.
+    merged, joined = join_filled_instances(xyz, semantic, instance, filled, radius=0.3)
+    assert joined == 2 and len(np.unique(merged)) == 1
+
+
 def test_a_small_thing_the_views_confirm_keeps_its_class_instead_of_folding_into_the_table():
     # A figurine (class 20, 40 points: a crumb at crumb_points 100) stands in front of a table (class 6). The
     # table's segment covers the views everywhere but where the figurine's own class-20 segment is. Folding it

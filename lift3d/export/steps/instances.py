@@ -75,13 +75,16 @@ class InstanceAssignment(ExportStep):
 
 @dataclass
 class FilledJoin(ExportStep):
-    """Instances made mostly of filled points (``thing-fill``) join the nearest other instance of their class
-    within reach (:func:`lift3d.export.instances.join_filled_instances`)."""
+    """Instances made mostly of filled points (``thing-fill``) join the nearest other instance of their class and
+    instance channel within reach (:func:`lift3d.export.instances.join_filled_instances`)."""
 
     name = "filled-join"
     radius_links: float = 3.0
     """Reach in instance link radii: a filled patch lies at least one link radius from the isosurface it completes,
     three reach it."""
+    same_channel: bool = True
+    """Join only an instance of the same instance channel: the field tells objects apart where its isosurface does
+    not reach them (a whole object mostly filled keeps its own id instead of joining its neighbour)."""
 
     def skip(self, state: PointState, context: StepContext) -> str | None:
         return None if state.points.filled is not None and state.points.filled.any() else "no filled points"
@@ -89,7 +92,8 @@ class FilledJoin(ExportStep):
     def apply(self, state: PointState, context: StepContext) -> dict:
         p = state.points
         instance, joined = join_filled_instances(p.xyz, p.semantic, p.instance, p.filled,
-                                                 radius=self.radius_links * state.link_radius)
+                                                 radius=self.radius_links * state.link_radius,
+                                                 channel=p.channel if self.same_channel else None)
         state.points = replace(p, instance=instance)
         return {"joined": joined}
 
