@@ -99,28 +99,50 @@ def label_share(scene: Scene, frames: np.ndarray, words: frozenset[str], max_fra
     return hit / total if total else 0.0
 
 
-def cameras_up(c2w: np.ndarray) -> np.ndarray:
-    """The world's up from camera-to-world poses ``[F, 4, 4]`` (OpenGL axes): the direction most at right angles
-    to the cameras' right axes (level for a camera that does not roll, whatever its pitch), when they turn
-    enough for that to be defined; else the mean of their image-up axes (which leans with their pitch).
+def level_up(c2w: np.ndarray) -> np.ndarray | None:
+    """The world's up from camera-to-world poses ``[F, 4, 4]`` (OpenGL axes) as the direction most at right angles
+    to the cameras' right axes (level for a camera that does not roll, whatever its pitch), turned to the side of
+    their image-up axes; None when the right axes do not turn enough for that to be defined (every camera facing
+    one way).
 
     Examples
     --------
     >>> from lift3d.data.cameras import look_at
     >>> eyes = [[3 * np.cos(a), 3 * np.sin(a), 1.5] for a in np.linspace(0, 2, 8)]
     >>> c2w = np.stack([look_at(np.array(e), np.array([0.0, 0.0, 0.0])) for e in eyes])  # looking down 27 deg
-    >>> np.round(cameras_up(c2w), 3).tolist()
+    >>> np.round(level_up(c2w), 3).tolist()
     [0.0, 0.0, 1.0]
+    >>> level_up(c2w[:1]) is None
+    True
     """
     c2w = np.asarray(c2w, np.float64)
-    mean_up = c2w[:, :3, 1].mean(0)
-    mean_up = mean_up / max(np.linalg.norm(mean_up), 1e-12)
     right = c2w[:, :3, 0]
     values, vectors = np.linalg.eigh(right.T @ right / len(right))
-    if values[1] > 10 * max(values[0], 1e-12) and values[1] > 0.02:  # the right axes span a plane
-        up = vectors[:, 0]
-        return up if up @ mean_up >= 0 else -up
-    return mean_up
+    if not (values[1] > 10 * max(values[0], 1e-12) and values[1] > 0.02):  # the right axes do not span a plane
+        return None
+    up = vectors[:, 0]
+    return up if up @ c2w[:, :3, 1].mean(0) >= 0 else -up
+
+
+def cameras_up(c2w: np.ndarray) -> np.ndarray:
+    """The world's up from camera-to-world poses ``[F, 4, 4]`` (OpenGL axes): :func:`level_up` when the cameras
+    turn enough for it to be defined, else the mean of their image-up axes (which leans with their pitch).
+
+    Examples
+    --------
+    Three cameras facing one way, 27° down: their right axes say nothing about up, their image-up axes lean.
+
+    >>> from lift3d.data.cameras import look_at
+    >>> c2w = np.stack([look_at(np.array([0.0, -3, 1.5]), np.array([0.0, 0, 0]))] * 3)
+    >>> np.round(cameras_up(c2w), 3).tolist()
+    [0.0, 0.447, 0.894]
+    """
+    c2w = np.asarray(c2w, np.float64)
+    up = level_up(c2w)
+    if up is not None:
+        return up
+    mean_up = c2w[:, :3, 1].mean(0)
+    return mean_up / max(np.linalg.norm(mean_up), 1e-12)
 
 
 def plane_evidence(xyz: np.ndarray, cams: np.ndarray, up: np.ndarray, box: np.ndarray | None) -> dict[str, Any]:

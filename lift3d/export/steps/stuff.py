@@ -84,7 +84,7 @@ class StuffCorners(ExportStep):
         n_before = len(p)
         lo, hi = np.asarray(loaded.norm.aabb_world, np.float64)
         diag = float(np.linalg.norm(hi - lo)) * (float(loaded.norm.scale) if p.frame == "normalized" else 1.0)
-        up = scene_up(scene.cameras[np.asarray(train_frames(scene))])  # as the training's plane fit
+        up = scene_up(scene.cameras[np.asarray(train_frames(scene))])  # roughly: the fit refines it to the floor
         keep, source, new_xyz, new_semantic, info = complete_stuff_corners(
             p.xyz, p.semantic, scene.stuff_ids, radius=self.radius_links * state.link_radius,
             threshold=self.plane_threshold * diag, up=up, min_plane_share=self.min_plane_share,

@@ -67,7 +67,7 @@ class FitSettings:
 def fit_planes(points: np.ndarray, classes: np.ndarray, stuff_ids, threshold: float, min_points: int = 15,
                margin: float = 0.0, up: np.ndarray | None = None,
                sightlines: tuple[np.ndarray, np.ndarray] | None = None, seed: int = 0,
-               settings: FitSettings | None = None) -> StuffPlanes:
+               settings: FitSettings | None = None, up_tolerance_deg: float = 25.0) -> StuffPlanes:
     """Sequential RANSAC planes of the stuff classes' points (see the module docstring).
 
     The points of all stuff classes are fitted together and each plane takes the classes of its inliers: fitted
@@ -92,7 +92,7 @@ def fit_planes(points: np.ndarray, classes: np.ndarray, stuff_ids, threshold: fl
         The scene's up direction. Given, planes are horizontal or vertical (floors, ceilings, walls, roads,
         façades): a horizontal plane needs one point and a vertical one two, so a few points per wall
         suffice and a horizontal slab through the feet of all walls is not a candidate for a wall. The up
-        direction is first refined to the normal of the largest plane within 25° of it.
+        direction is first refined to the normal of the largest plane within ``up_tolerance_deg`` of it.
     sightlines : (np.ndarray, np.ndarray), optional
         ``[M, 3]`` camera centres and ``[M, 3]`` the points they see (every observation, things too). A
         plane that sight lines cross inside its extent is contradicted by the views. Of the
@@ -104,6 +104,9 @@ def fit_planes(points: np.ndarray, classes: np.ndarray, stuff_ids, threshold: fl
         RANSAC's random draws (the result is deterministic for a seed).
     settings : FitSettings, optional
         How many planes and draws, and which classes a plane holds (default: :class:`FitSettings`'s).
+    up_tolerance_deg : float
+        How far ``up`` may be from the floor's normal (25°: the cameras' mean image-up axis leans with their
+        pitch; an up from level right axes is off by their roll only).
     """
     s = FitSettings() if settings is None else settings
     max_planes, iterations, candidates = s.max_planes, s.iterations, s.candidates
@@ -114,8 +117,10 @@ def fit_planes(points: np.ndarray, classes: np.ndarray, stuff_ids, threshold: fl
     stuff = np.isin(classes, [int(c) for c in stuff_ids])
     left, left_cls = points[stuff], classes[stuff]
     class_total = np.bincount(left_cls, minlength=1) if len(left_cls) else np.zeros(1, np.int64)
+    if up is not None:
+        up = np.asarray(up, np.float64) / np.linalg.norm(up)
     if up is not None and len(left) >= min_points:
-        up = _refined_up(left, np.asarray(up, np.float64) / np.linalg.norm(up), threshold, min_points, rng)
+        up = _refined_up(left, up, threshold, min_points, rng, tolerance_deg=up_tolerance_deg)
     rows: list[tuple] = []
     for _ in range(max_planes):
         if len(left) < min_points:
@@ -156,10 +161,10 @@ def fit_planes(points: np.ndarray, classes: np.ndarray, stuff_ids, threshold: fl
     if not rows:
         z3 = np.zeros((0, 3))
         return StuffPlanes(z3, np.zeros(0), [], np.zeros(0), np.zeros(0, np.int64), z3, np.zeros((0, 2, 3)), [],
-                           float(margin))
+                           float(margin), up=up)
     n, d, cls, rms, cnt, origin, basis, hull, main = zip(*rows)
     return StuffPlanes(np.array(n), np.array(d), list(cls), np.array(rms), np.array(cnt, np.int64),
-                       np.array(origin), np.array(basis), list(hull), float(margin), margin_classes=list(main))
+                       np.array(origin), np.array(basis), list(hull), float(margin), margin_classes=list(main), up=up)
 
 
 def _ransac_planes(x: np.ndarray, threshold: float, iterations: int, rng: np.random.Generator,
@@ -215,15 +220,15 @@ def _least_squares_plane(x: np.ndarray, like: np.ndarray | None = None) -> tuple
 
 
 def _refined_up(x: np.ndarray, up: np.ndarray, threshold: float, min_points: int,
-                rng: np.random.Generator, iterations: int = 500) -> np.ndarray:
-    """``up`` replaced by the normal of the largest plane among ``x`` within 25° of it, when that plane holds
+                rng: np.random.Generator, iterations: int = 500, tolerance_deg: float = 25.0) -> np.ndarray:
+    """``up`` replaced by the normal of the largest plane among ``x`` within ``tolerance_deg`` of it, when that plane holds
     ``2 × min_points`` points (the cameras' mean image-up axis is only roughly up: cameras that all look one
     way and down tilt it by 10° and more)."""
     idx = rng.integers(0, len(x), size=(iterations, 3))
     n, d = _unit_planes(np.cross(x[idx[:, 1]] - x[idx[:, 0]], x[idx[:, 2]] - x[idx[:, 0]]), x[idx[:, 0]])
     side = np.sign(n @ up)
     n, d = n * side[:, None], d * side
-    ok = n @ up > np.cos(np.radians(25))
+    ok = n @ up > np.cos(np.radians(tolerance_deg))
     if not ok.any():
         return up
     n, d = n[ok], d[ok]

@@ -47,6 +47,9 @@ class StuffPlanes:
         a share of its inliers (see :func:`fit_planes`). A class held for a few of its points (a ceiling's edge
         along a wall's top, a window in a wall) is there only where those points are; past them the margin
         would give its pixels the wall's depth where the wall has ended. Default: every class of ``classes``.
+    up : np.ndarray, optional
+        ``[3]`` the up direction the planes were fitted level and upright to (:func:`fit_planes` refines the
+        cameras' mean up to the normal of the largest near-level plane); None when fitted without one.
     """
 
     normal: np.ndarray
@@ -61,6 +64,7 @@ class StuffPlanes:
     seen_through: list | None = None
     cell: float = 0.0
     margin_classes: list | None = None
+    up: np.ndarray | None = None
 
     def __post_init__(self) -> None:
         if self.margin_classes is None:
@@ -135,14 +139,15 @@ class StuffPlanes:
                            [*self.classes, frozenset(int(c) for c in np.unique(classes))], np.r_[self.rms, rms],
                            np.r_[self.inliers, len(points)].astype(np.int64), np.r_[self.origin.reshape(-1, 3), origin[None]],
                            np.r_[self.basis.reshape(-1, 2, 3), basis[None]], [*self.hull, hull], self.margin,
-                           margin_classes=[*self.margin_classes, frozenset(int(c) for c in np.unique(classes))])
+                           margin_classes=[*self.margin_classes, frozenset(int(c) for c in np.unique(classes))],
+                           up=self.up)
 
     def subset(self, keep: np.ndarray) -> "StuffPlanes":
         """The planes where ``keep`` (``[P] bool``)."""
         idx = np.flatnonzero(keep)
         return StuffPlanes(self.normal[idx], self.offset[idx], [self.classes[i] for i in idx], self.rms[idx],
                            self.inliers[idx], self.origin[idx], self.basis[idx], [self.hull[i] for i in idx],
-                           self.margin, margin_classes=[self.margin_classes[i] for i in idx])
+                           self.margin, margin_classes=[self.margin_classes[i] for i in idx], up=self.up)
 
     def _moved(self, k: int, normal: np.ndarray, offset: float) -> "StuffPlanes":
         """These planes with plane ``k`` replaced by ``normal · x + offset = 0`` (a small turn and shift of

@@ -123,7 +123,8 @@ class FitPlanes(TargetStep):
                              max_crossing_share=self.max_crossing_share)
         return fit_planes(state.points, state.classes, context.scene.stuff_ids, threshold=context.threshold,
                           min_points=state.min_points, margin=self.margin * context.diag, up=context.up,
-                          sightlines=state.sightlines, seed=self.seed, settings=search)
+                          sightlines=state.sightlines, seed=self.seed, settings=search,
+                          up_tolerance_deg=context.up_tolerance_deg)
 
 
 @dataclass

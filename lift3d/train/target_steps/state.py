@@ -20,6 +20,7 @@ from lift3d.data.stereo import DenseDepth, SparsePoints
 from lift3d.model.config import ImageDepthConfig
 from lift3d.sfm.mvs import scene_up
 from lift3d.sfm.planes import StuffPlanes, floor_plane, height_above
+from lift3d.train.profile import level_up
 from lift3d.utils.steps import Step
 
 #: The metadata key of a step field that names its ImageDepthConfig field.
@@ -105,9 +106,25 @@ class TargetContext:
         return scene_diagonal(self.scene, self.sparse)
 
     @cached_property
-    def up(self) -> np.ndarray:
-        """The cameras' up direction (:func:`lift3d.sfm.mvs.scene_up`)."""
-        return scene_up(self.scene.cameras)
+    def up(self) -> np.ndarray | None:
+        """The world's up for the plane fit: at right angles to the cameras' right axes
+        (:func:`lift3d.train.profile.level_up`), which stay level whatever their pitch; else their mean image-up
+        axis (:func:`lift3d.sfm.mvs.scene_up`), which leans with it, or None when they do not agree on one (a
+        capture rolled every which way has no preferred horizontal planes). Not the mean image-up first: 25° off in
+        a room whose views all look down, and then the plane fit and the floor test miss the floor."""
+        leaning = scene_up(self.scene.cameras)
+        if leaning is None:
+            return None
+        level = level_up(self.scene.cameras.c2w)
+        return leaning if level is None else level
+
+    @property
+    def up_tolerance_deg(self) -> float:
+        """How far the plane fit may turn :attr:`up` to its largest near-level plane: 10° about a level up (what
+        the cameras' roll leaves), 25° about their mean image-up (what their pitch adds). A wider cone about a level
+        up lets a tilted plane through the floor's and the walls' feet pass for the floor (a small room's fit at
+        25° took one tilted 25°)."""
+        return 25.0 if level_up(self.scene.cameras.c2w) is None else 10.0
 
     @property
     def threshold(self) -> float:
@@ -207,7 +224,9 @@ class TargetState:
     @planes.setter
     def planes(self, planes: StuffPlanes | None) -> None:
         self._planes = planes
-        self.floor = None if planes is None else floor_plane(planes, self.up)
+        # The planes are level and upright to the fit's refined up: the cameras' mean up can be more than the
+        # floor test's 25° off it (cameras that all look down one way), and then no plane would be the floor.
+        self.floor = None if planes is None else floor_plane(planes, self.up if planes.up is None else planes.up)
 
     def has_planes(self) -> bool:
         """Whether there is at least one plane."""
