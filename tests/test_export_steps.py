@@ -271,7 +271,7 @@ def test_stuff_orientation_gives_a_floor_strip_back_to_the_floor():
 def test_stuff_corners_replace_a_rounded_edge_by_two_surfaces_inside_the_crop(monkeypatch):
     import lift3d.export.steps.stuff as stuff
 
-    monkeypatch.setattr(stuff, "scene_up", lambda cameras: np.array([0.0, 0.0, 1.0]))
+    monkeypatch.setattr(stuff, "plane_fit_up", lambda cameras: (np.array([0.0, 0.0, 1.0]), 10.0))
     g = np.linspace(0.2, 2.0, 37)
     a, b = np.meshgrid(g, np.linspace(0.0, 2.0, 41))
     floor = np.c_[a.ravel(), b.ravel(), np.zeros(a.size)]

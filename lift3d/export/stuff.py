@@ -209,7 +209,8 @@ CORNER_MIN_ANGLE = 60.0
 
 
 def complete_stuff_corners(xyz: np.ndarray, semantic: np.ndarray, stuff_ids, radius: float, threshold: float, *,
-                           up: np.ndarray | None = None, min_plane_share: float = CORNER_MIN_PLANE_SHARE,
+                           up: np.ndarray | None = None, up_tolerance_deg: float = 25.0,
+                           min_plane_share: float = CORNER_MIN_PLANE_SHARE,
                            min_angle: float = CORNER_MIN_ANGLE, max_points: int = CORNER_FIT_POINTS,
                            seed: int = 0) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, dict[str, Any]]:
     """Carry the stuff planes of a cloud to the edges where they meet.
@@ -251,6 +252,8 @@ def complete_stuff_corners(xyz: np.ndarray, semantic: np.ndarray, stuff_ids, rad
         RANSAC inlier distance of the planes.
     up : np.ndarray, optional
         The scene's up direction: planes are then horizontal or vertical.
+    up_tolerance_deg : float
+        How far ``up`` may be from the floor's normal (:func:`lift3d.sfm.mvs.plane_fit_up`).
     min_plane_share, min_angle, max_points, seed
         See the module constants; ``seed`` fixes the subsample and RANSAC's draws.
 
@@ -308,7 +311,7 @@ def complete_stuff_corners(xyz: np.ndarray, semantic: np.ndarray, stuff_ids, rad
     if len(fit) < 3:
         return (*none, stats)
     planes = fit_planes(xyz[fit], semantic[fit], stuff_ids, threshold=threshold,
-                        min_points=max(50, len(fit) // 200), up=up, seed=seed)
+                        min_points=max(50, len(fit) // 200), up=up, seed=seed, up_tolerance_deg=up_tolerance_deg)
     fit_cls = semantic[fit]
     fit_dist = np.abs(xyz[fit] @ planes.normal.T + planes.offset)  # [F, P]
 

@@ -51,6 +51,7 @@ from lift3d.sfm.config import DenseConfig, SfmConfig
 from lift3d.sfm.geometry import ideal_pixels, intrinsics, world_to_camera
 from lift3d.sfm.pairs import select_pairs
 from lift3d.sfm.sparse import default_frames
+from lift3d.utils.geometry import level_up
 from lift3d.utils.progress import progress_bar
 
 # Continuous pixel coordinates (centre of pixel c at c + 0.5) to OpenCV's (centre at c) and back.
@@ -433,6 +434,21 @@ def scene_up(cams: Cameras) -> np.ndarray | None:
     up = cams.c2w[:, :3, 1].mean(0)  # OpenGL camera y axis = image up
     n = np.linalg.norm(up)
     return up / n if n > 0.7 else None
+
+
+def plane_fit_up(cams: Cameras) -> tuple[np.ndarray | None, float]:
+    """The world's up for a fit of level and upright planes, and how far it may be from the floor's normal (the cone
+    :func:`lift3d.sfm.planes.fit_planes` refines it in): at right angles to the cameras' right axes
+    (:func:`lift3d.utils.geometry.level_up`, level whatever their pitch, off by their roll only: 10°); when every
+    camera faces one way, their mean image-up axis (:func:`scene_up`, which leans with their pitch: 25°); None when
+    they do not agree on one. Not the mean image-up first: it leans 25° in a room whose views all look down, and
+    then the floor is missed. A 25° cone about a level up lets a plane tilted through the floor and the walls'
+    feet pass for the floor (a small test room's fit took one tilted 25°)."""
+    leaning = scene_up(cams)
+    if leaning is None:
+        return None, 25.0
+    level = level_up(cams.c2w)
+    return (leaning, 25.0) if level is None else (level, 10.0)
 
 
 def plane_sweep_scene(scene: Scene, frames: Sequence[int] | None = None, config: SfmConfig | None = None,

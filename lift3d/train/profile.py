@@ -36,6 +36,7 @@ import numpy as np
 from lift3d.data.scene import Scene
 from lift3d.model.normalization import ContentPoints, SceneNormalization, optical_axes_focus
 from lift3d.model.profiles import PROFILES, premises_of
+from lift3d.utils.geometry import level_up
 
 #: Class-name words of outdoor scenes (matched against the words of a class name).
 OUTDOOR_WORDS = frozenset({"sky", "road", "street", "sidewalk", "pavement", "terrain", "vegetation", "grass",
@@ -99,33 +100,8 @@ def label_share(scene: Scene, frames: np.ndarray, words: frozenset[str], max_fra
     return hit / total if total else 0.0
 
 
-def level_up(c2w: np.ndarray) -> np.ndarray | None:
-    """The world's up from camera-to-world poses ``[F, 4, 4]`` (OpenGL axes) as the direction most at right angles
-    to the cameras' right axes (level for a camera that does not roll, whatever its pitch), turned to the side of
-    their image-up axes; None when the right axes do not turn enough for that to be defined (every camera facing
-    one way).
-
-    Examples
-    --------
-    >>> from lift3d.data.cameras import look_at
-    >>> eyes = [[3 * np.cos(a), 3 * np.sin(a), 1.5] for a in np.linspace(0, 2, 8)]
-    >>> c2w = np.stack([look_at(np.array(e), np.array([0.0, 0.0, 0.0])) for e in eyes])  # looking down 27 deg
-    >>> np.round(level_up(c2w), 3).tolist()
-    [0.0, 0.0, 1.0]
-    >>> level_up(c2w[:1]) is None
-    True
-    """
-    c2w = np.asarray(c2w, np.float64)
-    right = c2w[:, :3, 0]
-    values, vectors = np.linalg.eigh(right.T @ right / len(right))
-    if not (values[1] > 10 * max(values[0], 1e-12) and values[1] > 0.02):  # the right axes do not span a plane
-        return None
-    up = vectors[:, 0]
-    return up if up @ c2w[:, :3, 1].mean(0) >= 0 else -up
-
-
 def cameras_up(c2w: np.ndarray) -> np.ndarray:
-    """The world's up from camera-to-world poses ``[F, 4, 4]`` (OpenGL axes): :func:`level_up` when the cameras
+    """The world's up from camera-to-world poses ``[F, 4, 4]`` (OpenGL axes): :func:`lift3d.utils.geometry.level_up` when the cameras
     turn enough for it to be defined, else the mean of their image-up axes (which leans with their pitch).
 
     Examples

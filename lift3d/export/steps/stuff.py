@@ -11,7 +11,7 @@ from lift3d.export.steps.base import ExportStep, PointState, StepContext
 from lift3d.export.stuff import CORNER_FIT_POINTS, CORNER_MIN_ANGLE, CORNER_MIN_PLANE_SHARE, ORIENTATION_POINTS, \
     complete_stuff_corners, orient_stuff_labels
 from lift3d.export.visibility import train_frames
-from lift3d.sfm.mvs import scene_up
+from lift3d.sfm.mvs import plane_fit_up
 
 #: Inlier distance of the planes :func:`lift3d.export.stuff.complete_stuff_corners` fits, as a share of the scene
 #: box's diagonal (4 cm in a 10 m room). 0.2 % and 0.8 % gave point mIoU within 0.005 of it on each tuning run,
@@ -84,10 +84,11 @@ class StuffCorners(ExportStep):
         n_before = len(p)
         lo, hi = np.asarray(loaded.norm.aabb_world, np.float64)
         diag = float(np.linalg.norm(hi - lo)) * (float(loaded.norm.scale) if p.frame == "normalized" else 1.0)
-        up = scene_up(scene.cameras[np.asarray(train_frames(scene))])  # roughly: the fit refines it to the floor
+        up, up_tolerance = plane_fit_up(scene.cameras[np.asarray(train_frames(scene))])  # as the training's fit
         keep, source, new_xyz, new_semantic, info = complete_stuff_corners(
             p.xyz, p.semantic, scene.stuff_ids, radius=self.radius_links * state.link_radius,
-            threshold=self.plane_threshold * diag, up=up, min_plane_share=self.min_plane_share,
+            threshold=self.plane_threshold * diag, up=up, up_tolerance_deg=up_tolerance,
+            min_plane_share=self.min_plane_share,
             min_angle=self.min_angle, max_points=self.max_points)
         if len(source):
             # the projections carry their point's colour, instance channel and confidence; the field's own labels

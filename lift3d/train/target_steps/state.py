@@ -18,9 +18,8 @@ import numpy as np
 from lift3d.data.scene import Scene
 from lift3d.data.stereo import DenseDepth, SparsePoints
 from lift3d.model.config import ImageDepthConfig
-from lift3d.sfm.mvs import scene_up
+from lift3d.sfm.mvs import plane_fit_up
 from lift3d.sfm.planes import StuffPlanes, floor_plane, height_above
-from lift3d.train.profile import level_up
 from lift3d.utils.steps import Step
 
 #: The metadata key of a step field that names its ImageDepthConfig field.
@@ -107,24 +106,15 @@ class TargetContext:
 
     @cached_property
     def up(self) -> np.ndarray | None:
-        """The world's up for the plane fit: at right angles to the cameras' right axes
-        (:func:`lift3d.train.profile.level_up`), which stay level whatever their pitch; else their mean image-up
-        axis (:func:`lift3d.sfm.mvs.scene_up`), which leans with it, or None when they do not agree on one (a
-        capture rolled every which way has no preferred horizontal planes). Not the mean image-up first: 25° off in
-        a room whose views all look down, and then the plane fit and the floor test miss the floor."""
-        leaning = scene_up(self.scene.cameras)
-        if leaning is None:
-            return None
-        level = level_up(self.scene.cameras.c2w)
-        return leaning if level is None else level
+        """The world's up for the plane fit (:func:`lift3d.sfm.mvs.plane_fit_up`: level to the cameras' right axes,
+        else their mean image-up axis), or None when the cameras do not agree on one."""
+        return plane_fit_up(self.scene.cameras)[0]
 
-    @property
+    @cached_property
     def up_tolerance_deg(self) -> float:
-        """How far the plane fit may turn :attr:`up` to its largest near-level plane: 10° about a level up (what
-        the cameras' roll leaves), 25° about their mean image-up (what their pitch adds). A wider cone about a level
-        up lets a tilted plane through the floor's and the walls' feet pass for the floor (a small room's fit at
-        25° took one tilted 25°)."""
-        return 25.0 if level_up(self.scene.cameras.c2w) is None else 10.0
+        """How far the plane fit may turn :attr:`up` to its largest near-level plane
+        (:func:`lift3d.sfm.mvs.plane_fit_up`)."""
+        return plane_fit_up(self.scene.cameras)[1]
 
     @property
     def threshold(self) -> float:
