@@ -101,8 +101,9 @@ def label_share(scene: Scene, frames: np.ndarray, words: frozenset[str], max_fra
 
 
 def cameras_up(c2w: np.ndarray) -> np.ndarray:
-    """The world's up from camera-to-world poses ``[F, 4, 4]`` (OpenGL axes): :func:`lift3d.utils.geometry.level_up` when the cameras
-    turn enough for it to be defined, else the mean of their image-up axes (which leans with their pitch).
+    """The world's up from camera-to-world poses ``[F, 4, 4]`` (OpenGL axes): :func:`lift3d.utils.geometry.level_up`
+    when the cameras turn enough for it to be defined, else the mean of their image-up axes (which leans with their
+    pitch).
 
     Examples
     --------

@@ -221,8 +221,8 @@ def _least_squares_plane(x: np.ndarray, like: np.ndarray | None = None) -> tuple
 
 def _refined_up(x: np.ndarray, up: np.ndarray, threshold: float, min_points: int,
                 rng: np.random.Generator, iterations: int = 500, tolerance_deg: float = 25.0) -> np.ndarray:
-    """``up`` replaced by the normal of the largest plane among ``x`` within ``tolerance_deg`` of it, when that plane holds
-    ``2 × min_points`` points (the cameras' mean image-up axis is only roughly up: cameras that all look one
+    """``up`` replaced by the normal of the largest plane among ``x`` within ``tolerance_deg`` of it, when that plane
+    holds ``2 × min_points`` points (the cameras' mean image-up axis is only roughly up: cameras that all look one
     way and down tilt it by 10° and more)."""
     idx = rng.integers(0, len(x), size=(iterations, 3))
     n, d = _unit_planes(np.cross(x[idx[:, 1]] - x[idx[:, 0]], x[idx[:, 2]] - x[idx[:, 0]]), x[idx[:, 0]])
