@@ -51,6 +51,7 @@ import numpy as np
 from scipy.spatial import cKDTree
 
 from lift3d.sfm.planes import fit_planes
+from lift3d.sfm.planes.fit import LEANING_UP_CONE_DEG
 
 #: Points the orientations are measured on: larger exports are subsampled to this many stuff points (the
 #: density the rule was chosen at), and every other point follows its nearest measured neighbour.
@@ -209,7 +210,7 @@ CORNER_MIN_ANGLE = 60.0
 
 
 def complete_stuff_corners(xyz: np.ndarray, semantic: np.ndarray, stuff_ids, radius: float, threshold: float, *,
-                           up: np.ndarray | None = None, up_tolerance_deg: float = 25.0,
+                           up: np.ndarray | None = None, up_tolerance_deg: float = LEANING_UP_CONE_DEG,
                            min_plane_share: float = CORNER_MIN_PLANE_SHARE,
                            min_angle: float = CORNER_MIN_ANGLE, max_points: int = CORNER_FIT_POINTS,
                            seed: int = 0) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, dict[str, Any]]:

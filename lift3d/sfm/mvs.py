@@ -50,6 +50,7 @@ from lift3d.data.stereo import DenseDepth, SparsePoints
 from lift3d.sfm.config import DenseConfig, SfmConfig
 from lift3d.sfm.geometry import ideal_pixels, intrinsics, world_to_camera
 from lift3d.sfm.pairs import select_pairs
+from lift3d.sfm.planes.fit import LEANING_UP_CONE_DEG, LEVEL_UP_CONE_DEG
 from lift3d.sfm.sparse import default_frames
 from lift3d.utils.geometry import level_up
 from lift3d.utils.progress import progress_bar
@@ -439,16 +440,15 @@ def scene_up(cams: Cameras) -> np.ndarray | None:
 def plane_fit_up(cams: Cameras) -> tuple[np.ndarray | None, float]:
     """The world's up for a fit of level and upright planes, and how far it may be from the floor's normal (the cone
     :func:`lift3d.sfm.planes.fit_planes` refines it in): at right angles to the cameras' right axes
-    (:func:`lift3d.utils.geometry.level_up`, level whatever their pitch, off by their roll only: 10°); when every
-    camera faces one way, their mean image-up axis (:func:`scene_up`, which leans with their pitch: 25°); None when
-    they do not agree on one. Not the mean image-up first: it leans 25° in a room whose views all look down, and
-    then the floor is missed. A 25° cone about a level up lets a plane tilted through the floor and the walls'
-    feet pass for the floor (a small test room's fit took one tilted 25°)."""
+    (:func:`lift3d.utils.geometry.level_up`, level whatever their pitch, off by their roll only); when every camera
+    faces one way, their mean image-up axis (:func:`scene_up`, which leans with their pitch); None when they do not
+    agree on one. Not the mean image-up first: it leans 25° in a room whose views all look down, and then the floor
+    is missed. The cones: :data:`lift3d.sfm.planes.fit.LEVEL_UP_CONE_DEG`, ``LEANING_UP_CONE_DEG``."""
     leaning = scene_up(cams)
     if leaning is None:
-        return None, 25.0
+        return None, LEANING_UP_CONE_DEG
     level = level_up(cams.c2w)
-    return (leaning, 25.0) if level is None else (level, 10.0)
+    return (leaning, LEANING_UP_CONE_DEG) if level is None else (level, LEVEL_UP_CONE_DEG)
 
 
 def plane_sweep_scene(scene: Scene, frames: Sequence[int] | None = None, config: SfmConfig | None = None,

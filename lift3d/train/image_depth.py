@@ -232,7 +232,7 @@ def image_depth_targets(scene: Scene, frames: np.ndarray, cfg: ImageDepthConfig,
 
 def _room_premises(scene: Scene, state) -> tuple[frozenset[str], dict[str, Any]]:
     """The room's premises from the stuff planes fitted so far (:func:`lift3d.train.profile.premises_from_planes`)."""
-    up = state.floor[1] if state.floor is not None else (state.up if state.planes.up is None else state.planes.up)
+    up = state.floor[1] if state.floor is not None else state.level_to
     box = np.asarray(scene.scene_box.aabb, float) if is_bounded(scene) else None
     premises, evidence = premises_from_planes(state.planes, np.asarray(up, float), box)
     return premises, evidence

@@ -9,6 +9,13 @@ import numpy as np
 
 from lift3d.sfm.planes.model import StuffPlanes, _crossings, _extent
 
+#: How far the given up may be from the floor's normal, the cone the fit refines it in: about the cameras' mean
+#: image-up axis, which leans with their pitch, and about an up level to their right axes, off by their roll only
+#: (:func:`lift3d.sfm.mvs.plane_fit_up`; a wider cone about a level up let a small test room's fit take a plane
+#: tilted 25° through the floor and the walls' feet for the floor).
+LEANING_UP_CONE_DEG = 25.0
+LEVEL_UP_CONE_DEG = 10.0
+
 
 def point_classes(obs_point: np.ndarray, obs_class: np.ndarray, num_points: int,
                   min_share: float = 0.6) -> np.ndarray:
@@ -67,7 +74,7 @@ class FitSettings:
 def fit_planes(points: np.ndarray, classes: np.ndarray, stuff_ids, threshold: float, min_points: int = 15,
                margin: float = 0.0, up: np.ndarray | None = None,
                sightlines: tuple[np.ndarray, np.ndarray] | None = None, seed: int = 0,
-               settings: FitSettings | None = None, up_tolerance_deg: float = 25.0) -> StuffPlanes:
+               settings: FitSettings | None = None, up_tolerance_deg: float = LEANING_UP_CONE_DEG) -> StuffPlanes:
     """Sequential RANSAC planes of the stuff classes' points (see the module docstring).
 
     The points of all stuff classes are fitted together and each plane takes the classes of its inliers: fitted
@@ -105,8 +112,7 @@ def fit_planes(points: np.ndarray, classes: np.ndarray, stuff_ids, threshold: fl
     settings : FitSettings, optional
         How many planes and draws, and which classes a plane holds (default: :class:`FitSettings`'s).
     up_tolerance_deg : float
-        How far ``up`` may be from the floor's normal (25°: the cameras' mean image-up axis leans with their
-        pitch; an up from level right axes is off by their roll only).
+        How far ``up`` may be from the floor's normal (:data:`LEANING_UP_CONE_DEG`, :data:`LEVEL_UP_CONE_DEG`).
     """
     s = FitSettings() if settings is None else settings
     max_planes, iterations, candidates = s.max_planes, s.iterations, s.candidates
@@ -220,7 +226,7 @@ def _least_squares_plane(x: np.ndarray, like: np.ndarray | None = None) -> tuple
 
 
 def _refined_up(x: np.ndarray, up: np.ndarray, threshold: float, min_points: int,
-                rng: np.random.Generator, iterations: int = 500, tolerance_deg: float = 25.0) -> np.ndarray:
+                rng: np.random.Generator, iterations: int = 500, tolerance_deg: float = LEANING_UP_CONE_DEG) -> np.ndarray:
     """``up`` replaced by the normal of the largest plane among ``x`` within ``tolerance_deg`` of it, when that plane
     holds ``2 × min_points`` points (the cameras' mean image-up axis is only roughly up: cameras that all look one
     way and down tilt it by 10° and more)."""

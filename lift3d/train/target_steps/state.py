@@ -105,16 +105,20 @@ class TargetContext:
         return scene_diagonal(self.scene, self.sparse)
 
     @cached_property
+    def _plane_fit_up(self) -> tuple[np.ndarray | None, float]:
+        return plane_fit_up(self.scene.cameras)
+
+    @cached_property
     def up(self) -> np.ndarray | None:
         """The world's up for the plane fit (:func:`lift3d.sfm.mvs.plane_fit_up`: level to the cameras' right axes,
         else their mean image-up axis), or None when the cameras do not agree on one."""
-        return plane_fit_up(self.scene.cameras)[0]
+        return self._plane_fit_up[0]
 
     @cached_property
     def up_tolerance_deg(self) -> float:
         """How far the plane fit may turn :attr:`up` to its largest near-level plane
         (:func:`lift3d.sfm.mvs.plane_fit_up`)."""
-        return plane_fit_up(self.scene.cameras)[1]
+        return self._plane_fit_up[1]
 
     @property
     def threshold(self) -> float:
@@ -214,9 +218,13 @@ class TargetState:
     @planes.setter
     def planes(self, planes: StuffPlanes | None) -> None:
         self._planes = planes
-        # The planes are level and upright to the fit's refined up: the cameras' mean up can be more than the
-        # floor test's 25° off it (cameras that all look down one way), and then no plane would be the floor.
-        self.floor = None if planes is None else floor_plane(planes, self.up if planes.up is None else planes.up)
+        self.floor = None if planes is None else floor_plane(planes, self.level_to)
+
+    @property
+    def level_to(self) -> np.ndarray | None:
+        """The up the planes are level and upright to: the fit's refined up (the given one can be more than the
+        floor test's 25° off it, and then no plane would be the floor), else :attr:`up`."""
+        return self.up if self._planes is None or self._planes.up is None else self._planes.up
 
     def has_planes(self) -> bool:
         """Whether there is at least one plane."""
